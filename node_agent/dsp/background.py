@@ -1,0 +1,59 @@
+"""Background subtraction by exponential averaging (Section 9.2 of the CoLOR chapter)."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+
+class ExponentialBackgroundSubtractor:
+    """Removes static echoes (coupling, walls, furniture) from successive impulse responses.
+
+    The background is an exponential average of past impulse responses, as in the
+    background subtraction of Section 9.2 of the CoLOR chapter:
+
+    .. math::
+
+        y_k = h_k - b_{k-1}, \\qquad b_k = b_{k-1} + \\alpha\\, y_k = (1-\\alpha) b_{k-1} + \\alpha h_k
+
+    so that echoes that stay put for many more than ``1/alpha`` impulse responses vanish
+    from ``y_k`` while moving people remain. Complex baseband is subtracted coherently.
+
+    Parameters
+    ----------
+    alpha : float
+        Forgetting factor in (0, 1]; time constant ``1/alpha`` impulse responses.
+    """
+
+    def __init__(self, alpha: float = 0.05) -> None:
+        if not 0.0 < alpha <= 1.0:
+            raise ValueError(f"alpha must be in (0, 1], got {alpha}")
+        self.alpha = float(alpha)
+        self._background: npt.NDArray | None = None
+
+    def reset(self) -> None:
+        """Forget the background; the next call re-initialises it."""
+        self._background = None
+
+    def step(self, h: npt.NDArray) -> npt.NDArray:
+        """Subtract the background, then update it.
+
+        Parameters
+        ----------
+        h : ndarray, float32 or complex64, shape (n_rx, n)
+            Impulse responses.
+
+        Returns
+        -------
+        ndarray, same dtype and shape as ``h``
+            ``h - background``; all zeros on the first call (or after a shape change),
+            which initialises the background to ``h``.
+        """
+        bg = self._background
+        if bg is None or bg.shape != h.shape or bg.dtype != h.dtype:
+            self._background = np.array(h, copy=True)
+            return np.zeros_like(h)
+        y = h - bg
+        # in place: no allocation per call for the (n_rx, n) background
+        bg += self.alpha * y
+        return y

@@ -1,0 +1,174 @@
+"""MCAP recordings of the contract (PROTOCOL.md, "Recordings").
+
+Each key expression is a channel whose topic is the key, ``message_encoding`` is ``msgpack`` and
+whose schema is ``uwbnet.{kind}`` (a JSON schema of the map). ``log_time`` and ``publish_time``
+are ``t`` in nanoseconds, and the payload is exactly the bytes that travelled on the wire.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Self
+
+from mcap.writer import CompressionType, Writer
+
+from protocol.errors import RecordingError
+from protocol.messages import KINDS, Message
+from protocol.units import seconds_to_ns
+
+SCHEMA_PREFIX = "uwbnet."
+VIZ_PREFIX = "/viz/"
+
+
+def json_schema(kind: str) -> bytes:
+    """A JSON schema of the map of ``kind``: its type and required fields."""
+    cls = KINDS.get(kind)
+    required = ["v", "kind", "src", "seq", "t"]
+    if cls is not None:
+        required += [
+            f.name
+            for f in dataclasses.fields(cls)
+            if "wire" in f.metadata and not f.metadata.get("optional") and f.name not in required
+        ]
+    schema = {"title": SCHEMA_PREFIX + kind, "type": "object", "required": required}
+    return json.dumps(schema, separators=(",", ":")).encode()
+
+
+class RecordingWriter:
+    """Write an MCAP recording; the file appears under its name only when closed cleanly.
+
+    Messages go to ``{path}.partial``; :meth:`close` finishes the MCAP summary and renames it, so
+    an interrupted run never leaves a file that looks complete. Use as a context manager: an
+    exception inside the block removes the partial file.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, library: str = "uwbnet") -> None:
+        self.path = Path(path)
+        self._partial = self.path.with_name(self.path.name + ".partial")
+        try:
+            self._file: IO[bytes] | None = open(self._partial, "wb")
+        except OSError as exc:
+            raise RecordingError(f"cannot write {self.path}: {exc.strerror}") from None
+        self._writer = Writer(self._file, compression=CompressionType.NONE)
+        self._writer.start(profile="", library=library)
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self.count = 0
+
+    def _channel(self, topic: str, kind: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema = self._schemas.get(kind)
+            if schema is None:
+                schema = self._writer.register_schema(
+                    name=SCHEMA_PREFIX + kind, encoding="jsonschema", data=json_schema(kind)
+                )
+                self._schemas[kind] = schema
+            channel = self._writer.register_channel(
+                topic=topic, message_encoding="msgpack", schema_id=schema
+            )
+            self._channels[topic] = channel
+        return channel
+
+    def write(self, topic: str, kind: str, payload: bytes, t: float) -> None:
+        """Append one payload (bytes as on the wire) at network time ``t`` (s)."""
+        if self._file is None:
+            raise RecordingError(f"{self.path}: recording already closed")
+        ns = seconds_to_ns(t)
+        self._writer.add_message(
+            channel_id=self._channel(topic, kind), log_time=ns, publish_time=ns, data=payload
+        )
+        self.count += 1
+
+    def write_message(self, topic: str, msg: Message) -> bytes:
+        """Encode ``msg``, append it on ``topic`` and return the bytes written."""
+        payload = msg.to_wire()
+        self.write(topic, msg.KIND, payload, msg.t)
+        return payload
+
+    def close(self) -> None:
+        """Finish the MCAP, flush it to disk and move it to its final name. Idempotent."""
+        if self._file is None:
+            return
+        self._writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        self._file = None
+        os.replace(self._partial, self.path)
+
+    def abort(self) -> None:
+        """Drop the recording: close and remove the partial file. Idempotent."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        self._partial.unlink(missing_ok=True)
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class RecordedMessage:
+    """One message of a recording: its topic, kind (from the schema name), time and payload."""
+
+    topic: str
+    kind: str | None
+    log_time: int
+    payload: bytes
+
+    @property
+    def t(self) -> float:
+        return self.log_time / 1e9
+
+
+def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:
+    """Yield the contract's messages of an MCAP recording in file order.
+
+    ``/viz/...`` channels and channels not encoded as msgpack are skipped. A missing, corrupt or
+    truncated file raises :class:`RecordingError` with a one-line message (after yielding the
+    messages before the damage, so a caller may keep or drop them).
+    """
+    from mcap.reader import make_reader
+
+    path = Path(path)
+    try:
+        f = open(path, "rb")
+    except OSError as exc:
+        raise RecordingError(f"cannot read {path}: {exc.strerror}") from None
+    with f:
+        try:
+            reader = make_reader(f)
+            for schema, channel, message in reader.iter_messages(log_time_order=False):
+                if channel.topic.startswith(VIZ_PREFIX) or channel.message_encoding != "msgpack":
+                    continue
+                kind = None
+                if schema is not None and schema.name.startswith(SCHEMA_PREFIX):
+                    kind = schema.name[len(SCHEMA_PREFIX) :]
+                yield RecordedMessage(
+                    topic=channel.topic,
+                    kind=kind,
+                    log_time=message.log_time,
+                    payload=bytes(message.data),
+                )
+        except RecordingError:
+            raise
+        except Exception as exc:  # mcap raises struct, zlib, EOF and its own errors alike
+            detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise RecordingError(f"{path}: corrupt or truncated MCAP ({detail})") from None

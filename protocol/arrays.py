@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -63,7 +64,8 @@ def decode_array(
     if not isinstance(data, bytes | bytearray | memoryview):
         raise DecodeError(f"field {field!r}: data must be binary")
     dt = np.dtype(dtype)
-    expected = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+    # Python ints: np.prod in int64 wraps (or overflows) on huge shapes.
+    expected = math.prod(shape) * dt.itemsize
     if len(data) != expected:
         raise ShapeError(
             f"field {field!r}: data has {len(data)} bytes, shape {list(shape)} x {dtype} "

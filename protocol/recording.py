@@ -154,7 +154,8 @@ def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:
         raise RecordingError(f"cannot read {path}: {exc.strerror}") from None
     with f:
         try:
-            reader = make_reader(f)
+            # Chunk CRCs catch flipped payload bytes, which the record structure does not.
+            reader = make_reader(f, validate_crcs=True)
             for schema, channel, message in reader.iter_messages(log_time_order=False):
                 if channel.topic.startswith(VIZ_PREFIX) or channel.message_encoding != "msgpack":
                     continue

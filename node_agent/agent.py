@@ -1,0 +1,243 @@
+"""The node agent process: driver -> DSP -> zenoh publishers, status and liveliness.
+
+A thin shell: timing comes from the published TDMA schedule, processing from
+:class:`node_agent.core.NodeCore`, and every zenoh declaration is held for the agent's lifetime
+and undeclared by :meth:`NodeAgent.stop`. Callbacks only enqueue (zenoh's rule).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from node_agent.core import NodeConfigError, NodeCore, detections_message
+from node_agent.drivers.base import DriverError, RadarDriver
+from node_agent.dsp.pipeline import NodeDspConfig
+from node_agent.tdma import next_slot
+from protocol import Ir, NodeInfo, ProtocolError, Status, TdmaSchedule, keys
+from protocol.transport import FifoChannel
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class AgentConfig:
+    """Configuration of one node agent.
+
+    Parameters
+    ----------
+    node : node id ([A-Za-z0-9_-]+).
+    net : network name of the key expressions.
+    publish_ir : publish raw impulse responses on ``.../ir`` (for imaging and recording).
+    status_period : seconds between ``status`` messages.
+    dsp : node DSP configuration.
+    """
+
+    node: str
+    net: str = "demo"
+    publish_ir: bool = True
+    status_period: float = 1.0
+    dsp: NodeDspConfig = dataclasses.field(default_factory=NodeDspConfig)
+
+
+class NodeAgent:
+    """Acquires in this node's TDMA slots, processes, and publishes ``ir``, ``detections``,
+    ``status``, ``node_info`` and a liveliness token on an open zenoh ``session``.
+
+    ``clock`` returns network time in seconds. ``start()`` and ``stop()`` are idempotent; ``stop``
+    waits for the worker thread.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        driver: RadarDriver,
+        config: AgentConfig,
+        *,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.session, self.driver, self.config, self.clock = session, driver, config, clock
+        desc = driver.describe()
+        self.info = NodeInfo(src=config.node, seq=0, t=clock(), **desc)
+        self._info_bytes = self.info.to_wire()
+        self.tx = next(
+            (f"{config.node}/{name}" for name, a in self.info.antennas.items() if a.tx), None
+        )
+        self.core = NodeCore(self.info, config.dsp)
+        self._schedule_in: FifoChannel[bytes] = FifoChannel(16)
+        self._schedule: TdmaSchedule | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._decl: list[Any] = []
+        self._seq = {"ir": 0, "det": 0, "status": 0}
+        self.counters = {
+            "acquired": 0,
+            "published": 0,
+            "dropped": 0,
+            "late_slots": 0,
+            "decode_errors": 0,
+            "dsp_errors": 0,
+            "driver_errors": 0,
+        }
+        self._started_at = 0.0
+
+    # -- lifecycle -------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Declare publishers, queryable, subscriber and token, and start the worker."""
+        if self._thread is not None:
+            return
+        net, node = self.config.net, self.config.node
+        s = self.session
+        self._pub_ir = s.declare_publisher(
+            keys.node_key(net, node, "ir"), congestion_control=zenoh.CongestionControl.DROP
+        )
+        self._pub_det = s.declare_publisher(
+            keys.node_key(net, node, "det"), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        self._pub_status = s.declare_publisher(keys.node_key(net, node, "status"))
+        info_key = keys.node_key(net, node, "info")
+        self._decl += [self._pub_ir, self._pub_det, self._pub_status]
+        self._decl.append(s.declare_queryable(info_key, self._on_info_query))
+        self._decl.append(
+            s.declare_subscriber(
+                keys.schedule_key(net), lambda sample: self._schedule_in.put(_payload(sample))
+            )
+        )
+        self._decl.append(s.liveliness().declare_token(keys.alive_key(net, node)))
+        s.put(info_key, self._info_bytes)
+        self._started_at = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name=f"agent-{node}", daemon=True)
+        self._thread.start()
+        log.info("node agent %s started on net %s (tx %s)", node, net, self.tx)
+
+    def stop(self) -> None:
+        """Stop the worker and undeclare everything. Idempotent."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        for d in reversed(self._decl):
+            try:
+                d.undeclare()
+            except zenoh.ZError:  # the session may already be closing
+                pass
+        self._decl.clear()
+
+    def _on_info_query(self, query: zenoh.Query) -> None:
+        # Reply on our own concrete key, not on the query's wildcard.
+        query.reply(keys.node_key(self.config.net, self.config.node, "info"), self._info_bytes)
+
+    # -- worker ----------------------------------------------------------------------------
+
+    def _take_schedule(self) -> None:
+        for payload in self._schedule_in.drain():
+            try:
+                sched = TdmaSchedule.from_wire(payload)
+            except ProtocolError as exc:
+                self.counters["decode_errors"] += 1
+                log.warning("node %s: rejected schedule: %s", self.config.node, exc)
+                continue
+            self._schedule = sched
+
+    def _query_schedule(self) -> None:
+        try:
+            for reply in self.session.get(keys.schedule_key(self.config.net), timeout=1.0):
+                if reply.ok is not None:
+                    self._schedule_in.put(reply.ok.payload.to_bytes())
+        except zenoh.ZError as exc:
+            log.debug("schedule query failed: %s", exc)
+
+    def _run(self) -> None:
+        last_status = time.monotonic()
+        cpu_mark = (time.thread_time(), time.monotonic())
+        last_query = 0.0
+        while not self._stop.is_set():
+            self._take_schedule()
+            if self._schedule is None or self.tx is None:
+                if time.monotonic() - last_query > 1.0:
+                    last_query = time.monotonic()
+                    self._query_schedule()
+                else:
+                    self._stop.wait(0.05)
+                continue
+            slot = next_slot(self._schedule, self.tx, self.clock())
+            if slot is None:  # not (yet) in the schedule
+                self._stop.wait(0.05)
+                continue
+            wait = slot.t - self.clock()
+            if wait > 0 and self._stop.wait(wait):
+                break
+            if self.clock() - slot.t > slot.duration:
+                self.counters["late_slots"] += 1
+            self._acquire_and_publish(slot)
+            now = time.monotonic()
+            if now - last_status >= self.config.status_period:
+                cpu = (time.thread_time() - cpu_mark[0]) / max(now - cpu_mark[1], 1e-9)
+                cpu_mark = (time.thread_time(), now)
+                last_status = now
+                self._publish_status(cpu)
+
+    def _acquire_and_publish(self, slot: Any) -> None:
+        try:
+            acq = self.driver.acquire(slot)
+        except DriverError as exc:
+            self.counters["driver_errors"] += 1
+            log.warning("node %s: acquisition failed: %s", self.config.node, exc)
+            return
+        self.counters["acquired"] += 1
+        ir = Ir(
+            src=self.config.node,
+            seq=self._next("ir"),
+            t=acq.t,
+            tx=acq.tx,
+            rx=acq.rx,
+            slot=slot.slot,
+            frame=slot.frame,
+            h=acq.h,
+            pose=acq.pose,
+        )
+        if self.config.publish_ir:
+            self._pub_ir.put(ir.to_wire())
+            self.counters["published"] += 1
+        try:
+            result = self.core.process(ir)
+        except (NodeConfigError, ValueError) as exc:
+            self.counters["dsp_errors"] += 1
+            log.warning("node %s: processing failed: %s", self.config.node, exc)
+            return
+        det = detections_message(ir, result, src=self.config.node, seq=self._next("det"))
+        self._pub_det.put(det.to_wire())
+        self.counters["published"] += 1
+
+    def _publish_status(self, cpu: float) -> None:
+        c = self.counters
+        status = Status(
+            src=self.config.node,
+            seq=self._next("status"),
+            t=self.clock(),
+            uptime=time.monotonic() - self._started_at,
+            acquired=c["acquired"],
+            published=c["published"],
+            dropped=c["dropped"],
+            late_slots=c["late_slots"],
+            decode_errors=c["decode_errors"],
+            cpu=cpu,
+            extra={"dsp_errors": c["dsp_errors"], "driver_errors": c["driver_errors"]},
+        )
+        self._pub_status.put(status.to_wire())
+
+    def _next(self, stream: str) -> int:
+        seq = self._seq[stream]
+        self._seq[stream] = seq + 1
+        return seq
+
+
+def _payload(sample: zenoh.Sample) -> bytes:
+    return sample.payload.to_bytes()

@@ -1,0 +1,46 @@
+"""A node agent radar driver backed by the simulation (``node_agent.drivers`` name ``sim``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from node_agent.drivers.base import Acquisition, RadarDriver
+from node_agent.tdma import SlotTiming
+from sim_nodes.network import SimNetwork
+
+
+class SimulatedDriver(RadarDriver):
+    """Acquires impulse responses of one simulated node.
+
+    Parameters
+    ----------
+    network : the simulated scene, shared by every simulated node of a process (or rebuilt from
+        the same scenario and seed in each process: people move deterministically in time).
+    node : node id in the scenario.
+    start : network time (s) of scenario time 0.
+    """
+
+    def __init__(self, network: SimNetwork, node: str, *, start: float = 0.0) -> None:
+        infos = network.node_infos()
+        if node not in infos:
+            raise ValueError(f"node {node!r} is not in the scenario ({', '.join(sorted(infos))})")
+        self.network, self.node, self.start = network, node, start
+        self._info = infos[node]
+        n_rx = sum(1 for a in self._info["antennas"].values() if a["rx"])
+        super().__init__(n_rx=n_rx, n=int(self._info["radar"]["n"]))
+
+    def describe(self) -> dict[str, Any]:
+        from protocol import Antenna, RadarInfo
+
+        info = self._info
+        return {
+            "role": info["role"],
+            "pose": tuple(info["pose"]),
+            "mobile": bool(info["mobile"]),
+            "antennas": {name: Antenna(**a) for name, a in info["antennas"].items()},
+            "radar": RadarInfo(**info["radar"]),
+        }
+
+    def _acquire_internal(self, slot: SlotTiming) -> Acquisition:
+        tx, rx, h = self.network.acquire(self.node, slot.t - self.start)
+        return Acquisition(t=slot.t, tx=tx, rx=tuple(rx), h=h)

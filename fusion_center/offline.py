@@ -34,11 +34,13 @@ class TrackingError(ValueError):
 def make_tracker(method: str) -> Tracker:
     """The tracker of ``method``: ``gmphd`` (Section 9.2, labelled GM-PHD) or ``image``
     (Section 9.1, closest target per sensor and fused image of eq. (23))."""
-    from fusion_center.tracking import FusedImageTracker, GmPhdTracker
-
     if method == "gmphd":
+        from fusion_center.tracking.gmphd import GmPhdTracker
+
         return GmPhdTracker()
     if method == "image":
+        from fusion_center.tracking.fused_image import FusedImageTracker
+
         return FusedImageTracker()
     raise TrackingError(f"unknown tracking method {method!r} (gmphd, image)")
 

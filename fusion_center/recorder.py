@@ -1,0 +1,107 @@
+"""Record a live network to MCAP (PROTOCOL.md, "Recordings").
+
+Subscribes to ``uwbnet/{net}/**`` and writes every payload unchanged. A node's ``node_info`` is
+written before its first ``ir``: when the recorder joined after the node announced itself, the
+description is fetched from the node's queryable first.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from typing import Any
+
+import zenoh
+
+from protocol import ProtocolError, keys
+from protocol.errors import KeyExprError
+from protocol.messages import unpack
+from protocol.recording import RecordingWriter
+from protocol.transport import FifoChannel
+
+log = logging.getLogger(__name__)
+
+
+class NetworkRecorder:
+    """Writes the traffic of network ``net`` seen by ``session`` into ``path``.
+
+    ``start()``/``stop()`` are idempotent; ``stop()`` drains the queue and closes the file.
+    Messages that are not valid uwbnet messages are counted in ``rejected``; messages the
+    queue could not hold are counted in ``dropped`` (the queue is sized for seconds of ``ir``).
+    """
+
+    def __init__(self, session: zenoh.Session, net: str, path: str | os.PathLike[str]) -> None:
+        self.session, self.net = session, net
+        self.writer = RecordingWriter(path)
+        self._inbox: FifoChannel[tuple[str, bytes]] = FifoChannel(20000)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._sub: Any = None
+        self._has_info: set[str] = set()
+        self.rejected = 0
+
+    @property
+    def dropped(self) -> int:
+        return self._inbox.dropped
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        put = self._inbox.put
+        self._sub = self.session.declare_subscriber(
+            keys.all_key(self.net),
+            lambda s: put((str(s.key_expr), s.payload.to_bytes())),
+        )
+        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop, write what is queued, and close the recording. Idempotent."""
+        if self._sub is not None:
+            self._sub.undeclare()
+            self._sub = None
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=30.0)
+            self._thread = None
+        for key, payload in self._inbox.drain():
+            self._write(key, payload, fetch=False)
+        self.writer.close()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            item = self._inbox.get(timeout=0.1)
+            if item is not None:
+                self._write(*item, fetch=True)
+
+    def _write(self, key: str, payload: bytes, *, fetch: bool) -> None:
+        try:
+            parsed = keys.parse_key(key)
+            m = unpack(payload)
+        except (KeyExprError, ProtocolError) as exc:
+            self.rejected += 1
+            log.warning("not recorded: %s: %s", key, exc)
+            return
+        t = m.get("t")
+        if parsed.kind is None or not isinstance(t, float | int):
+            self.rejected += 1
+            return
+        if parsed.kind == "node_info" and parsed.node:
+            self._has_info.add(parsed.node)
+        elif parsed.kind == "ir" and parsed.node and parsed.node not in self._has_info:
+            if fetch:
+                self._fetch_info(parsed.node)
+            if parsed.node not in self._has_info:
+                self.rejected += 1
+                return
+        self.writer.write(key, parsed.kind, payload, float(t))
+
+    def _fetch_info(self, node: str) -> None:
+        key = keys.node_key(self.net, node, "info")
+        try:
+            for reply in self.session.get(key, timeout=1.0):
+                if reply.ok is not None:
+                    self._write(key, reply.ok.payload.to_bytes(), fetch=False)
+        except zenoh.ZError as exc:
+            log.warning("node_info of %s: %s", node, exc)

@@ -1,0 +1,237 @@
+"""``uwbnet demo``: the whole network on one machine, in real time, over real zenoh sessions.
+
+Simulated nodes, one node agent per node and the fusion center each get their own zenoh
+session (peer mode on loopback, as separate hosts would), all in this process. The live view is
+a terminal table of tracks and per-node health; the run ends after ``duration`` or on Ctrl-C
+and prints a summary with the tracking error against the simulator's truth.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import zenoh
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+
+from fusion_center.recorder import NetworkRecorder
+from fusion_center.service import FusionConfig, FusionService, NodeHealth
+from fusion_center.tracking.base import TrackerOutput
+from fusion_center.tracking.metrics import ospa
+from node_agent.agent import AgentConfig, NodeAgent
+from protocol import keys
+from protocol.transport import free_tcp_port, session_config
+from sim_nodes.driver import SimulatedDriver
+from sim_nodes.network import SimNetwork
+from sim_nodes.record import truth_message
+from sim_nodes.scene import Scenario
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class DemoConfig:
+    """Parameters of a demo run (``uwbnet demo --help``)."""
+
+    scenario: Scenario
+    duration: float = math.inf
+    seed: int = 1
+    net: str = "demo"
+    method: str = "gmphd"
+    record: str | None = None
+    publish_ir: bool = True
+
+
+@dataclasses.dataclass(slots=True)
+class DemoScore:
+    """Running tracking error of the demo against the simulator's truth (after 2 s)."""
+
+    updates: int = 0
+    ospa_sum: float = 0.0
+    count_ok: int = 0
+
+    def add(self, out: TrackerOutput, truth_xy: np.ndarray) -> float:
+        d = ospa(out.positions(), truth_xy, c=1.0, p=2)
+        self.updates += 1
+        self.ospa_sum += d
+        self.count_ok += int(len(out.tracks) == len(truth_xy))
+        return d
+
+    def as_dict(self) -> dict[str, Any]:
+        n = max(self.updates, 1)
+        return {
+            "updates_scored": self.updates,
+            "ospa_mean": round(self.ospa_sum / n, 4),
+            "card_correct_fraction": round(self.count_ok / n, 4),
+        }
+
+
+def _truth_loop(
+    session: zenoh.Session, network: SimNetwork, net: str, start: float, stop: threading.Event
+) -> None:
+    """Publish the simulator's truth at 50 Hz (simulation only, PROTOCOL.md ``truth``)."""
+    pub = session.declare_publisher(keys.truth_key(net))
+    seq = 0
+    try:
+        while not stop.wait(0.02):
+            t = time.time()
+            msg = truth_message(network, t - start, seq)
+            pub.put(dataclasses.replace(msg, t=t).to_wire())
+            seq += 1
+    finally:
+        pub.undeclare()
+
+
+def _table(
+    out: TrackerOutput | None,
+    health: dict[str, NodeHealth],
+    truth: list[dict[str, Any]],
+    elapsed: float,
+    score: DemoScore,
+) -> Group:
+    tracks = Table(title=f"uwbnet demo  t = {elapsed:6.1f} s", expand=False)
+    for col in ("id", "x [m]", "y [m]", "vx [m/s]", "vy [m/s]", "w"):
+        tracks.add_column(col, justify="right")
+    if out is not None:
+        for tr in out.tracks:
+            tracks.add_row(
+                str(tr.id),
+                f"{tr.x:6.2f}",
+                f"{tr.y:6.2f}",
+                f"{tr.vx:5.2f}",
+                f"{tr.vy:5.2f}",
+                f"{tr.w:4.2f}",
+            )
+    s = score.as_dict()
+    tracks.caption = (
+        f"{len(out.tracks) if out else 0} tracks, {len(truth)} people  |  "
+        f"mean OSPA {s['ospa_mean']:.2f} m, count correct {100 * s['card_correct_fraction']:.0f} %"
+    )
+    nodes = Table(title="nodes")
+    for col in ("node", "alive", "acquired", "late", "drops", "det/s", "latency ms", "cpu %"):
+        nodes.add_column(col, justify="right")
+    for node, h in sorted(health.items()):
+        st = h.last_status
+        rate = h.detections / elapsed if elapsed > 0 else 0.0
+        nodes.add_row(
+            node,
+            "yes" if h.alive else "[red]LOST[/red]",
+            str(st.acquired) if st else "-",
+            str(st.late_slots) if st else "-",
+            str(st.dropped) if st else "-",
+            f"{rate:5.1f}",
+            f"{h.latency_ms:5.1f}" if math.isfinite(h.latency_ms) else "-",
+            f"{100 * st.cpu:4.1f}" if st else "-",
+        )
+    return Group(tracks, nodes)
+
+
+def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, Any]:
+    """Run the demo; returns its summary (also printed). Stops cleanly on KeyboardInterrupt."""
+    console = console or Console()
+    network = SimNetwork(config.scenario, config.seed)
+    hub = f"tcp/127.0.0.1:{free_tcp_port()}"
+    # Network time is wall-clock time; scenario time 0 is the TDMA epoch, a little ahead so
+    # that every node has joined before the first frame.
+    start = time.time() + 0.5
+    score = DemoScore()
+    stop = threading.Event()
+    summary: dict[str, Any] = {}
+    with contextlib.ExitStack() as stack:
+        fusion_session = stack.enter_context(zenoh.open(session_config(listen=[hub])))
+        fusion = FusionService(
+            fusion_session, FusionConfig(net=config.net, method=config.method), epoch=start
+        )
+        fusion.start()
+        stack.callback(fusion.stop)
+        recorder = None
+        if config.record:
+            rec_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+            recorder = NetworkRecorder(rec_session, config.net, config.record)
+            recorder.start()
+            stack.callback(recorder.stop)
+        sim_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+        truth_thread = threading.Thread(
+            target=_truth_loop, args=(sim_session, network, config.net, start, stop), daemon=True
+        )
+        truth_thread.start()
+        stack.callback(truth_thread.join, 2.0)
+        stack.callback(stop.set)
+        agents = []
+        for node in sorted(network.node_infos()):
+            session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+            driver = stack.enter_context(SimulatedDriver(network, node, start=start))
+            agent = NodeAgent(
+                session,
+                driver,
+                AgentConfig(
+                    node=node, net=config.net, publish_ir=config.publish_ir or bool(recorder)
+                ),
+            )
+            agent.start()
+            stack.callback(agent.stop)
+            agents.append(agent)
+        console.print(
+            f"uwbnet demo: scenario {config.scenario.name}, {len(agents)} nodes, fusion "
+            f"{config.method}, zenoh peers on {hub}"
+            + (f", recording {config.record}" if config.record else "")
+        )
+        last_scored = None
+        live_ctx = (
+            Live(console=console, refresh_per_second=4, transient=False)
+            if console.is_terminal
+            else contextlib.nullcontext()
+        )
+        try:
+            with live_ctx as live:
+                next_line = time.time()
+                while True:
+                    now = time.time()
+                    elapsed = now - start
+                    if elapsed >= config.duration:
+                        break
+                    out, health = fusion.snapshot()
+                    truth = network.truth(max(elapsed, 0.0))
+                    if out is not None and out is not last_scored and out.t - start > 2.0:
+                        txy = np.array([(p["x"], p["y"]) for p in network.truth(out.t - start)])
+                        score.add(out, txy.reshape(-1, 2))
+                        last_scored = out
+                    if live is not None:
+                        live.update(_table(out, health, truth, elapsed, score))
+                    elif now >= next_line:
+                        next_line = now + 2.0
+                        n_tr = len(out.tracks) if out else 0
+                        console.print(
+                            f"t={elapsed:6.1f} s  tracks={n_tr}  people={len(truth)}  "
+                            f"ospa_mean={score.as_dict()['ospa_mean']:.3f} m"
+                        )
+                    time.sleep(0.05)
+        except KeyboardInterrupt:
+            console.print("interrupted: stopping")
+        out, health = fusion.snapshot()
+        summary = {
+            "scenario": config.scenario.name,
+            "duration_s": round(time.time() - start, 2),
+            "nodes": len(agents),
+            "fusion_updates": fusion.core.counters.updates,
+            "late_detections": fusion.core.counters.late,
+            "decode_errors": fusion.decode_errors,
+            "acquired": sum(a.counters["acquired"] for a in agents),
+            "late_slots": sum(a.counters["late_slots"] for a in agents),
+            "final_tracks": len(out.tracks) if out else 0,
+            **score.as_dict(),
+        }
+        if recorder is not None:
+            summary["recorded_dropped"] = recorder.dropped
+    # The recording is complete only once the exit stack has closed it.
+    if config.record:
+        summary["recording"] = config.record
+    return summary

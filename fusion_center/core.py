@@ -1,10 +1,10 @@
 """The fusion center's processing, I/O-free: ``node_info`` and ``detections`` in, tracks out.
 
 Shared by the live service and offline ``uwbnet track``. Detections are grouped by TDMA frame;
-a frame is handed to the tracker once a detection of a later frame shows it is complete
-(``frame_lag`` frames later), or on :meth:`FusionCore.flush`. Duplicates (same source and
-``seq``) and detections of frames already processed are counted and dropped: the tracker never
-goes back in time.
+a frame is handed to the tracker as soon as every expected sensor has reported for it, once a
+detection ``frame_lag`` frames later shows it is over, or on :meth:`FusionCore.flush`.
+Duplicates (same source and ``seq``) and detections of frames already processed are counted
+and dropped: the tracker never goes back in time.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ class FusionCoreConfig:
         capped by the radar's window (half its longest bistatic range).
     """
 
-    frame_lag: int = 1
+    frame_lag: int = 2
     max_range: float = 15.0
 
 
@@ -62,6 +62,8 @@ class FusionCore:
         self._last_t = -math.inf
         self._seen: dict[str, int] = {}
         self._views: dict[tuple[str, str, tuple[str, ...]], tuple[np.ndarray, float, float]] = {}
+        #: Sensors expected to report in every frame (the TDMA schedule's); empty: unknown.
+        self.expected: frozenset[str] = frozenset()
 
     def add_node(self, info: NodeInfo) -> None:
         """Take (or refresh) a node's description."""
@@ -121,6 +123,9 @@ class FusionCore:
                 max_range=self._max_range(self.nodes[det.src]),
             )
         )
+        frame = self._pending[det.frame]
+        if self.expected and self.expected <= {scan.sensor for scan in frame}:
+            return self._emit(det.frame)
         return self._emit(det.frame - self.config.frame_lag)
 
     def flush(self) -> list[TrackerOutput]:

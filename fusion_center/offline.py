@@ -134,7 +134,9 @@ def track_recording(
                         stats.rejected += 1
                         log.warning("ir of %s before its node_info: rejected", msg.src)
                         continue
-                    have_ir.add(msg.src)
+                    if msg.src not in have_ir:
+                        have_ir.add(msg.src)
+                        fusion.expected = frozenset(have_ir)
                     try:
                         result = core.process(msg)
                     except (NodeConfigError, ValueError) as exc:

@@ -271,6 +271,7 @@ class FusionService:
             ),
         )
         self._schedule = sched
+        self.core.expected = frozenset(tx.partition("/")[0] for tx in txs)
         self._schedule_bytes = sched.to_wire()
         self._pub_schedule.put(self._schedule_bytes)
         log.info("TDMA schedule: %d slots of %.2f ms", len(txs), dur * 1e3)

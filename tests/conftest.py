@@ -8,19 +8,18 @@ from __future__ import annotations
 
 import threading
 import time
-import weakref
 
 import numpy as np
 import pytest
 import zenoh
 
-_open_sessions: weakref.WeakSet[zenoh.Session] = weakref.WeakSet()
+_open_sessions: list[zenoh.Session] = []
 _real_open = zenoh.open
 
 
 def _tracking_open(*args, **kwargs):  # type: ignore[no-untyped-def]
     session = _real_open(*args, **kwargs)
-    _open_sessions.add(session)
+    _open_sessions.append(session)
     return session
 
 
@@ -31,7 +30,8 @@ zenoh.open = _tracking_open
 def _no_leaks():  # type: ignore[no-untyped-def]
     threads_before = set(threading.enumerate())
     yield
-    leaked = [s for s in list(_open_sessions) if not s.is_closed()]
+    leaked = [s for s in _open_sessions if not s.is_closed()]
+    _open_sessions.clear()
     for s in leaked:
         s.close()
     deadline = time.monotonic() + 2.0

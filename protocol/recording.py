@@ -145,7 +145,7 @@ def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:
     truncated file raises :class:`RecordingError` with a one-line message (after yielding the
     messages before the damage, so a caller may keep or drop them).
     """
-    from mcap.reader import make_reader
+    from mcap.reader import NonSeekingReader
 
     path = Path(path)
     try:
@@ -154,8 +154,10 @@ def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:
         raise RecordingError(f"cannot read {path}: {exc.strerror}") from None
     with f:
         try:
-            # Chunk CRCs catch flipped payload bytes, which the record structure does not.
-            reader = make_reader(f, validate_crcs=True)
+            # Read linearly, checking chunk CRCs: the summary section (channels, indexes) has
+            # no CRC the reader checks, so a flipped byte there could silently drop or
+            # re-route messages; schemas and channels inside the chunks are covered.
+            reader = NonSeekingReader(f, validate_crcs=True)
             for schema, channel, message in reader.iter_messages(log_time_order=False):
                 if channel.topic.startswith(VIZ_PREFIX) or channel.message_encoding != "msgpack":
                     continue

@@ -23,7 +23,8 @@ from protocol.errors import DecodeError
 T = TypeVar("T")
 
 #: Node and service ids (PROTOCOL.md, "Key expressions").
-ID_RE = re.compile(r"^[A-Za-z0-9_-]+$")
+# \Z, not $: "$" also matches before a trailing newline, which would let "a\n" through.
+ID_RE = re.compile(r"^[A-Za-z0-9_-]+\Z")
 
 
 class Conv:

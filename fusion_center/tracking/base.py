@@ -65,9 +65,7 @@ class SensorScan:
         cov = np.asarray(self.cov, dtype=np.float64).reshape(-1, 2, 2)
         origin = np.asarray(self.origin, dtype=np.float64).reshape(2)
         if cov.shape[0] != positions.shape[0]:
-            raise ValueError(
-                f"cov has {cov.shape[0]} matrices for {positions.shape[0]} positions"
-            )
+            raise ValueError(f"cov has {cov.shape[0]} matrices for {positions.shape[0]} positions")
         object.__setattr__(self, "positions", positions)
         object.__setattr__(self, "cov", cov)
         object.__setattr__(self, "origin", origin)
@@ -182,7 +180,9 @@ def constant_velocity_model(dt: float, accel_psd: float) -> tuple[FloatArray, Fl
     return F, Q
 
 
-def in_field_of_view(scan: SensorScan, xy: FloatArray) -> npt.NDArray[np.bool_]:
+def in_field_of_view(
+    scan: SensorScan, xy: FloatArray, margin: float = 0.0
+) -> npt.NDArray[np.bool_]:
     """Whether points lie inside a sensor's field of view and range.
 
     Parameters
@@ -191,16 +191,25 @@ def in_field_of_view(scan: SensorScan, xy: FloatArray) -> npt.NDArray[np.bool_]:
         Provides ``origin``, ``boresight``, ``beamwidth`` and ``max_range``.
     xy : ndarray, float64, shape (n, 2)
         World positions, m.
+    margin : float
+        Widen the field of view by this distance, m, at the range limit and at the sector
+        edges (a point within ``margin`` of the sector counts as inside).
 
     Returns
     -------
     ndarray, bool, shape (n,)
-        ``|p - o| <= max_range`` and ``|wrap(atan2(p - o) - boresight)| <= beamwidth / 2``.
+        ``|p - o| <= max_range + margin`` and
+        ``|wrap(atan2(p - o) - boresight)| <= beamwidth / 2 + asin(min(1, margin / |p - o|))``.
     """
     d = xy - scan.origin
-    inside = np.einsum("ij,ij->i", d, d) <= scan.max_range**2
+    r2 = np.einsum("ij,ij->i", d, d)
+    inside = r2 <= (scan.max_range + margin) ** 2
     if scan.beamwidth < 2.0 * math.pi:
         bearing = np.arctan2(d[:, 1], d[:, 0]) - scan.boresight
         off = np.abs((bearing + math.pi) % (2.0 * math.pi) - math.pi)
-        inside &= off <= 0.5 * scan.beamwidth
+        half = 0.5 * scan.beamwidth
+        if margin > 0.0:
+            with np.errstate(divide="ignore"):
+                half = half + np.arcsin(np.minimum(1.0, margin / np.sqrt(r2)))
+        inside &= off <= half
     return inside

@@ -1,0 +1,535 @@
+"""Labelled Gaussian-mixture PHD tracker (Section 9.2.3 of the CoLOR chapter).
+
+The filter is the GM-PHD recursion of Vo & Ma (2006), "The Gaussian mixture probability
+hypothesis density filter", IEEE Trans. Signal Process. 54(11), with
+
+* a constant-velocity motion model, state ``[x, vx, y, vy]``;
+* position measurements with the covariance each sensor reports per estimate;
+* a state-dependent detection probability: ``p_D`` inside a sensor's field of view and
+  range, ``p_D,out`` (0 by default) outside, so a person a sensor cannot see keeps weight;
+* adaptive birth from measurements that the existing mixture explains poorly
+  (Ristic, Clark, Vo & Vo 2012): they seed components used from the next step on;
+* several sensors per step by the *iterated corrector*: the sensors' updates are applied
+  one after another, in time order, each followed by a prediction to the next scan time
+  (Mahler 2007, Sec. 10.5; exact only if detection probabilities are 1, good in practice);
+* track labels beyond the chapter's nearest-neighbour labelling: each component carries an
+  integer label propagated through prediction and update, a merge keeps the label of its
+  heaviest member, the extraction gives a fresh label to a second heavy component of one
+  label, and a label is reported only after ``confirm_steps`` steps above the extraction
+  threshold (one-off clutter births never are).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from .base import (
+    FloatArray,
+    SensorScan,
+    Tracker,
+    TrackerOutput,
+    TrackEstimate,
+    constant_velocity_model,
+    in_field_of_view,
+)
+
+__all__ = ["GmPhdConfig", "GmPhdTracker", "merge_components"]
+
+IntArray = npt.NDArray[np.int64]
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GmPhdConfig:
+    """Parameters of :class:`GmPhdTracker`; each is declared once here.
+
+    Attributes
+    ----------
+    accel_psd : float
+        Power spectral density ``q`` of the white acceleration noise per axis, m²/s³.
+    survival_probability : float
+        Probability that a target persists for one second; ``p_S = p^Δt`` per prediction.
+    detection_probability : float
+        ``p_D`` of a target inside a sensor's field of view and range.
+    detection_probability_outside : float
+        ``p_D`` outside the field of view or beyond ``max_range`` (0: no weight lost there).
+    fov_margin : float
+        Components up to this distance outside a sensor's field of view, m, still take part
+        in its update with ``p_D,out``: they claim measurements near the edge of the view,
+        which would otherwise seed a duplicate birth.
+    clutter_rate : float
+        Mean number of false position estimates per scan of one sensor.
+    surveillance_area : float or None
+        Area over which clutter spreads, m²; ``None``: the sensor's field-of-view sector
+        ``beamwidth/2 * max_range²``. Clutter intensity ``κ = clutter_rate / area``, 1/m².
+    birth_weight : float
+        Weight of a birth seeded by a measurement no existing component explains.
+    birth_velocity_std : float
+        Standard deviation of each velocity component of a birth, m/s.
+    birth_max_association : float
+        A measurement seeds a birth only if the fraction ``r`` of it explained by the existing
+        components is below this; the birth weight is ``birth_weight * (1 - r)``.
+    gate : float
+        Squared Mahalanobis gate of a component-measurement pair (13.8: χ²₂ at 99.9 %).
+    prune_threshold : float
+        Components lighter than this are dropped.
+    merge_threshold : float
+        Squared Mahalanobis distance ``U`` under which components are merged (Vo & Ma).
+    max_components : int
+        Cap ``J_max`` on the number of components after merging.
+    max_label_weight : float
+        Cap on the summed weight of one label after each update (``inf``: plain PHD). With 1,
+        a label stands for at most one person, which keeps two labels apart when their people
+        cross: otherwise the weight split between two co-located labels is a multiplicative
+        random walk that ends with one label holding both people.
+    extract_threshold : float
+        A label is a target estimate when its summed weight reaches this.
+    keep_threshold : float
+        A confirmed label stays reported while its summed weight is above this (hysteresis:
+        each missed detection of a sensor leaves ``1 - p_D`` of the weight, and several
+        sensors in a row may miss; a person who left is below it after a frame or two).
+    confirm_steps : int
+        Steps with summed weight above ``extract_threshold`` before a label is reported.
+    """
+
+    accel_psd: float = 0.5
+    survival_probability: float = 0.95
+    detection_probability: float = 0.9
+    detection_probability_outside: float = 0.0
+    fov_margin: float = 0.5
+    clutter_rate: float = 5.0
+    surveillance_area: float | None = None
+    birth_weight: float = 0.1
+    birth_velocity_std: float = 1.0
+    birth_max_association: float = 0.5
+    gate: float = 13.8
+    prune_threshold: float = 1e-5
+    merge_threshold: float = 4.0
+    max_components: int = 200
+    max_label_weight: float = 1.0
+    extract_threshold: float = 0.5
+    keep_threshold: float = 1e-3
+    confirm_steps: int = 3
+
+
+@dataclass(slots=True)
+class _Mixture:
+    """Mutable working mixture: weights (J,), means (J, 4), covariances (J, 4, 4), labels."""
+
+    w: FloatArray
+    m: FloatArray
+    P: FloatArray
+    label: IntArray
+
+    @classmethod
+    def empty(cls) -> _Mixture:
+        return cls(np.zeros(0), np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros(0, dtype=np.int64))
+
+    def take(self, idx: npt.NDArray[np.intp] | npt.NDArray[np.bool_]) -> _Mixture:
+        return _Mixture(self.w[idx], self.m[idx], self.P[idx], self.label[idx])
+
+    @staticmethod
+    def concat(parts: Sequence[_Mixture]) -> _Mixture:
+        return _Mixture(
+            np.concatenate([p.w for p in parts]),
+            np.concatenate([p.m for p in parts]),
+            np.concatenate([p.P for p in parts]),
+            np.concatenate([p.label for p in parts]),
+        )
+
+
+def merge_components(
+    w: FloatArray,
+    m: FloatArray,
+    P: FloatArray,
+    label: IntArray,
+    threshold: float,
+    protected: npt.NDArray[np.bool_] | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, IntArray]:
+    """Greedy moment-matching merge of Gaussian components (Vo & Ma 2006, Table II).
+
+    The heaviest remaining component ``l`` absorbs every remaining ``i`` with
+
+    .. math::
+
+        (m_i - m_l)^T P_l^{-1} (m_i - m_l) \\le U,\\qquad
+        \\tilde w = \\sum_i w_i,\\quad
+        \\tilde m = \\frac{1}{\\tilde w}\\sum_i w_i m_i,\\quad
+        \\tilde P = \\frac{1}{\\tilde w}\\sum_i w_i \\left(P_i + (\\tilde m - m_i)
+        (\\tilde m - m_i)^T\\right)
+
+    and the merged component keeps the label of ``l``. Two components whose (different)
+    labels are both ``protected`` (confirmed tracks) are never merged: two people crossing
+    share a position for a moment and their velocity estimates may be close. All pairwise
+    distances come from one batched solve; the only Python loop runs over the clusters.
+
+    Parameters
+    ----------
+    w : ndarray, float64, shape (J,)
+    m : ndarray, float64, shape (J, 4)
+    P : ndarray, float64, shape (J, 4, 4)
+    label : ndarray, int64, shape (J,)
+    threshold : float
+        ``U``.
+    protected : ndarray, bool, shape (J,), optional
+        Components of confirmed labels.
+
+    Returns
+    -------
+    w, m, P, label
+        The merged mixture, sorted by decreasing weight.
+    """
+    n = w.shape[0]
+    order = np.argsort(-w, kind="stable")
+    w, m, P, label = w[order], m[order], P[order], label[order]
+    if n <= 1:
+        return w, m, P, label
+    diff = m[None, :, :] - m[:, None, :]  # diff[l, i] = m_i - m_l, (J, J, 4)
+    sol = np.linalg.solve(P, diff.transpose(0, 2, 1))  # P_l^{-1} (m_i - m_l), (J, 4, J)
+    close = np.einsum("lai,lia->li", sol, diff) <= threshold
+    if protected is not None:
+        prot = protected[order]
+        close &= (label[:, None] == label[None, :]) | ~(prot[:, None] & prot[None, :])
+    remaining = np.ones(n, dtype=bool)
+    assign = np.empty(n, dtype=np.intp)
+    leaders = []
+    lead = 0
+    cluster = 0
+    while True:
+        members = close[lead] & remaining
+        members[lead] = True
+        assign[members] = cluster
+        remaining &= ~members
+        leaders.append(lead)
+        cluster += 1
+        if not remaining.any():
+            break
+        lead = int(remaining.argmax())  # heaviest remaining: the arrays are weight-sorted
+    if cluster == n:
+        return w, m, P, label
+    grouped = np.argsort(assign, kind="stable")
+    starts = np.searchsorted(assign[grouped], np.arange(cluster))
+    wg, mg, Pg = w[grouped], m[grouped], P[grouped]
+    w_new = np.add.reduceat(wg, starts)
+    m_new = np.add.reduceat(wg[:, None] * mg, starts) / w_new[:, None]
+    d = mg - m_new[assign[grouped]]
+    spread = Pg + d[:, :, None] * d[:, None, :]
+    P_new = np.add.reduceat(wg[:, None, None] * spread, starts) / w_new[:, None, None]
+    return w_new, m_new, P_new, label[np.asarray(leaders)]
+
+
+def _cap_label_weight(w: FloatArray, label: IntArray, cap: float) -> FloatArray:
+    """Scale each label's components so that their summed weight is at most ``cap``."""
+    _, inv = np.unique(label, return_inverse=True)
+    total = np.bincount(inv, weights=w)
+    return w * np.minimum(1.0, cap / np.maximum(total, 1e-300))[inv]
+
+
+class GmPhdTracker(Tracker):
+    """Labelled GM-PHD multi-target tracker over the sensors' position estimates.
+
+    Parameters
+    ----------
+    config : GmPhdConfig, optional
+        Filter parameters.
+
+    Notes
+    -----
+    One step: add last step's births; for each scan in time order, predict to its time,
+    apply the GM-PHD update (Vo & Ma 2006, eqs. (20)-(21)), prune and merge the updated
+    components; predict to ``t``; cap; extract labelled estimates. For a component ``j``
+    and a measurement ``z_k`` with covariance ``R_k``, with ``H`` selecting ``x, y``:
+
+    .. math::
+
+        S_{jk} = H P_j H^T + R_k,\\quad
+        q_{jk} = \\mathcal N(z_k; H m_j, S_{jk}),\\quad
+        w_{jk} = \\frac{p_D(m_j)\\, w_j\\, q_{jk}}{\\kappa + \\sum_i p_D(m_i)\\, w_i\\, q_{ik}}
+
+    and the missed-detection component keeps weight ``(1 - p_D(m_j)) w_j``. ``S`` is 2x2
+    and inverted in closed form; pairs outside the gate are skipped.
+    """
+
+    def __init__(self, config: GmPhdConfig | None = None) -> None:
+        self.config = config or GmPhdConfig()
+        self._model_cache: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        self._mix = _Mixture.empty()
+        self._births = _Mixture.empty()
+        self._t: float | None = None
+        self._next_label = 1
+        self._hits: dict[int, int] = {}
+        self._confirmed: set[int] = set()
+        self._confirmed_arr = np.zeros(0, dtype=np.int64)
+
+    # -- recursion ----------------------------------------------------------------------
+
+    def _model(self, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        key = round(dt, 9)
+        cached = self._model_cache.get(key)
+        if cached is None:
+            F, Q = constant_velocity_model(key, self.config.accel_psd)
+            cached = (F, F.T.copy(), Q)
+            if len(self._model_cache) > 64:
+                self._model_cache.clear()
+            self._model_cache[key] = cached
+        return cached
+
+    def _predict(self, dt: float) -> None:
+        """Vo & Ma eq. (16)-(17): ``w ← p_S w``, ``m ← F m``, ``P ← F P F^T + Q``."""
+        if dt <= 0.0 or self._mix.w.size == 0:
+            return
+        F, Ft, Q = self._model(dt)
+        mix = self._mix
+        mix.w = mix.w * self.config.survival_probability**dt
+        mix.m = mix.m @ Ft
+        mix.P = F @ mix.P @ Ft + Q
+
+    def _protected(self, mix: _Mixture) -> npt.NDArray[np.bool_] | None:
+        """Components of confirmed labels, or None when no label is confirmed yet."""
+        arr = self._confirmed_arr  # sorted
+        if arr.size == 0:
+            return None
+        pos = np.minimum(np.searchsorted(arr, mix.label), arr.size - 1)
+        return arr[pos] == mix.label
+
+    def _clutter_intensity(self, scan: SensorScan) -> float:
+        cfg = self.config
+        area = cfg.surveillance_area
+        if area is None:
+            area = 0.5 * scan.beamwidth * scan.max_range**2
+            if not math.isfinite(area):
+                raise ValueError(
+                    "surveillance_area must be set when a sensor has an infinite max_range"
+                )
+        return cfg.clutter_rate / area
+
+    def _update(self, scan: SensorScan) -> _Mixture:
+        """Correct the mixture with one scan; return the births it seeds."""
+        cfg = self.config
+        mix = self._mix
+        z, R = scan.positions, scan.cov
+        n_meas = z.shape[0]
+        pd_out = cfg.detection_probability_outside
+        if mix.w.size:
+            xy = mix.m[:, ::2]
+            visible = in_field_of_view(scan, xy)
+            # Components far outside the view are untouched when p_D,out = 0: keep them aside.
+            if pd_out == 0.0:
+                active = in_field_of_view(scan, xy, cfg.fov_margin) | visible
+            else:
+                active = np.ones_like(visible)
+        else:
+            visible = active = np.zeros(0, dtype=bool)
+        act = mix.take(active)
+        rest = mix.take(~active)
+        pd = np.where(visible[active], cfg.detection_probability, pd_out)
+
+        explained = np.zeros(n_meas)
+        claimed = np.zeros(n_meas, dtype=bool)
+        if act.w.size and n_meas:
+            Pa = act.P
+            nu = z[None, :, :] - act.m[:, None, ::2]  # (Ja, k, 2)
+            s00 = Pa[:, None, 0, 0] + R[None, :, 0, 0]
+            s01 = Pa[:, None, 0, 2] + R[None, :, 0, 1]
+            s11 = Pa[:, None, 2, 2] + R[None, :, 1, 1]
+            det = s00 * s11 - s01 * s01
+            n0, n1 = nu[..., 0], nu[..., 1]
+            d2 = (s11 * n0 * n0 - 2.0 * s01 * n0 * n1 + s00 * n1 * n1) / det
+            gated = d2 < cfg.gate
+            q = np.exp(-0.5 * d2) / (_TWO_PI * np.sqrt(det))
+            num = np.where(gated, (pd * act.w)[:, None] * q, 0.0)  # (Ja, k)
+            total = num.sum(axis=0)
+            kappa = self._clutter_intensity(scan)
+            wdet = num / (kappa + total)
+            explained = total / (kappa + total)
+            # A measurement in the gate of a confirmed track seeds no birth, however light the
+            # track is after missed detections: the birth would later absorb it in a merge.
+            owned = self._protected(act)
+            if owned is not None:
+                claimed = (gated & owned[:, None]).any(axis=0)
+            jj, kk = np.nonzero(wdet > cfg.prune_threshold)
+            if jj.size:
+                # K = P H^T S^{-1} with the closed-form 2x2 inverse of S.
+                inv_det = 1.0 / det[jj, kk]
+                a, b, c = s11[jj, kk] * inv_det, -s01[jj, kk] * inv_det, s00[jj, kk] * inv_det
+                Pj = Pa[jj]
+                PHt = Pj[:, :, ::2]  # (n, 4, 2)
+                K0 = PHt[:, :, 0] * a[:, None] + PHt[:, :, 1] * b[:, None]
+                K1 = PHt[:, :, 0] * b[:, None] + PHt[:, :, 1] * c[:, None]
+                v0, v1 = n0[jj, kk], n1[jj, kk]
+                m_det = act.m[jj] + K0 * v0[:, None] + K1 * v1[:, None]
+                # P - K H P, with H P = (P H^T)^T.
+                P_det = (
+                    Pj - K0[:, :, None] * PHt[:, None, :, 0] - K1[:, :, None] * PHt[:, None, :, 1]
+                )
+                detected = _Mixture(wdet[jj, kk], m_det, P_det, act.label[jj])
+            else:
+                detected = _Mixture.empty()
+            missed = _Mixture(act.w * (1.0 - pd), act.m, act.P, act.label)
+            act = _Mixture.concat((missed, detected))
+        elif act.w.size:
+            act.w = act.w * (1.0 - pd)
+
+        if act.w.size:
+            act = act.take(act.w > cfg.prune_threshold)
+            act = _Mixture(
+                *merge_components(
+                    act.w, act.m, act.P, act.label, cfg.merge_threshold, self._protected(act)
+                )
+            )
+            if math.isfinite(cfg.max_label_weight):
+                act.w = _cap_label_weight(act.w, act.label, cfg.max_label_weight)
+            self._mix = _Mixture.concat((rest, act)) if rest.w.size else act
+        else:
+            self._mix = rest
+        return self._births_from(scan, explained, claimed)
+
+    def _births_from(
+        self, scan: SensorScan, explained: FloatArray, claimed: npt.NDArray[np.bool_]
+    ) -> _Mixture:
+        """Adaptive birth: one component per poorly explained, unclaimed measurement."""
+        cfg = self.config
+        seed = (explained < cfg.birth_max_association) & ~claimed
+        n = int(seed.sum())
+        if n == 0:
+            return _Mixture.empty()
+        z, R = scan.positions[seed], scan.cov[seed]
+        m = np.zeros((n, 4))
+        m[:, ::2] = z
+        P = np.zeros((n, 4, 4))
+        P[:, 0, 0], P[:, 0, 2], P[:, 2, 0], P[:, 2, 2] = (
+            R[:, 0, 0],
+            R[:, 0, 1],
+            R[:, 1, 0],
+            R[:, 1, 1],
+        )
+        P[:, 1, 1] = P[:, 3, 3] = cfg.birth_velocity_std**2
+        labels = np.arange(self._next_label, self._next_label + n, dtype=np.int64)
+        self._next_label += n
+        return _Mixture(cfg.birth_weight * (1.0 - explained[seed]), m, P, labels)
+
+    # -- public ---------------------------------------------------------------------------
+
+    def step(self, t: float, scans: Sequence[SensorScan]) -> TrackerOutput:
+        """Advance the filter to ``t`` with this frame's scans.
+
+        Parameters
+        ----------
+        t : float
+            Output time, s.
+        scans : sequence of SensorScan
+            The frame's scans; processed in order of ``scan.t`` (iterated corrector).
+
+        Returns
+        -------
+        TrackerOutput
+            Confirmed labelled tracks at ``t`` and the expected target number
+            ``Σ_j w_j``.
+        """
+        if self._t is None:
+            self._t = min([t, *(s.t for s in scans)])
+        if self._births.w.size:
+            self._mix = (
+                _Mixture.concat((self._mix, self._births)) if self._mix.w.size else self._births
+            )
+            self._births = _Mixture.empty()
+        births = []
+        for scan in sorted(scans, key=lambda s: s.t):
+            if scan.t > self._t:
+                self._predict(scan.t - self._t)
+                self._t = scan.t
+            b = self._update(scan)
+            if b.w.size:
+                births.append(b)
+        if t > self._t:
+            self._predict(t - self._t)
+            self._t = t
+        if births:
+            self._births = births[0] if len(births) == 1 else _Mixture.concat(births)
+        if len(scans) > 1 and self._mix.w.size > 1:
+            # Components of one target seen by different sensors were merged per sensor only.
+            mix = self._mix
+            self._mix = _Mixture(
+                *merge_components(
+                    mix.w,
+                    mix.m,
+                    mix.P,
+                    mix.label,
+                    self.config.merge_threshold,
+                    self._protected(mix),
+                )
+            )
+        mix = self._mix
+        if mix.w.size > self.config.max_components:
+            self._mix = mix.take(np.argsort(-mix.w)[: self.config.max_components])
+        return self._extract(t)
+
+    def _extract(self, t: float) -> TrackerOutput:
+        """Labelled estimates: per label, the heaviest component; sum of weights as ``w``."""
+        cfg = self.config
+        mix = self._mix
+        if mix.w.size == 0:
+            self._hits.clear()
+            self._confirmed.clear()
+            self._confirmed_arr = np.zeros(0, dtype=np.int64)
+            return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
+        # Sort by label, then by decreasing weight: the first of each label is its heaviest.
+        order = np.lexsort((-mix.w, mix.label))
+        lab = mix.label[order]
+        first = np.ones(lab.size, dtype=bool)
+        first[1:] = lab[1:] != lab[:-1]
+        # A second heavy component of one label is another target: give it a fresh label.
+        dup = ~first & (mix.w[order] >= cfg.extract_threshold)
+        if dup.any():
+            # ... unless it sits on the head of its label (it differs in velocity only).
+            head_of = order[np.maximum.accumulate(np.where(first, np.arange(lab.size), 0))]
+            cand, head = order[dup], head_of[dup]
+            dp = mix.m[cand][:, ::2] - mix.m[head][:, ::2]
+            Ph = mix.P[head][:, ::2, ::2]
+            d2 = np.einsum("ni,ni->n", dp, np.linalg.solve(Ph, dp[:, :, None])[:, :, 0])
+            dup[dup] = d2 > cfg.merge_threshold
+        if dup.any():
+            n_dup = int(dup.sum())
+            idx = order[dup]
+            mix.label[idx] = np.arange(self._next_label, self._next_label + n_dup)
+            self._next_label += n_dup
+            order = np.lexsort((-mix.w, mix.label))
+            lab = mix.label[order]
+            first = np.ones(lab.size, dtype=bool)
+            first[1:] = lab[1:] != lab[:-1]
+        starts = np.flatnonzero(first)
+        label_w = np.add.reduceat(mix.w[order], starts)
+        heads = order[starts]
+        labels = lab[starts]
+        strong = label_w >= cfg.extract_threshold
+
+        hits = {}
+        for label, is_strong in zip(labels.tolist(), strong.tolist(), strict=True):
+            hits[label] = self._hits.get(label, 0) + int(is_strong)
+        self._hits = hits
+        confirmed = {lb for lb in self._confirmed if lb in hits}
+        confirmed.update(lb for lb, h in hits.items() if h >= cfg.confirm_steps)
+        self._confirmed = confirmed
+        self._confirmed_arr = np.sort(np.fromiter(confirmed, dtype=np.int64, count=len(confirmed)))
+
+        is_confirmed = np.fromiter((lb in confirmed for lb in labels.tolist()), bool)
+        report = is_confirmed & (label_w >= cfg.keep_threshold)
+        tracks = tuple(
+            TrackEstimate(id=int(lb), x=mm[0], vx=mm[1], y=mm[2], vy=mm[3], cov=PP, w=ww)
+            for lb, mm, PP, ww in zip(
+                labels[report].tolist(),
+                mix.m[heads[report]].tolist(),
+                mix.P[heads[report]],
+                label_w[report].tolist(),
+                strict=True,
+            )
+        )
+        return TrackerOutput(t=t, tracks=tracks, n_estimate=float(mix.w.sum()))

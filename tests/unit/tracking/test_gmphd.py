@@ -1,0 +1,142 @@
+"""GmPhdTracker: simulate walkers seen by bat-type sensors, recover them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion_center.tracking.base import SensorScan
+from fusion_center.tracking.gmphd import GmPhdConfig, GmPhdTracker, merge_components
+from fusion_center.tracking.metrics import evaluate
+
+from .sim import FRAME, Sensor, crossing_truth, detect, sensors_around
+
+# Clutter of the simulation: 1 false estimate per scan, spread over the 10 m x 8 m room.
+CONFIG = GmPhdConfig(clutter_rate=1.0, surveillance_area=80.0)
+
+
+def run_tracker(rng, truth_xy, sensors, tracker=None, alive=None):  # type: ignore[no-untyped-def]
+    """Feed one frame per truth sample; scans spread over the frame like TDMA slots."""
+    tracker = tracker or GmPhdTracker(CONFIG)
+    outputs = []
+    for k in range(truth_xy.shape[0]):
+        t = k * FRAME
+        xy = truth_xy[k] if alive is None else truth_xy[k][alive[k]]
+        scans = [detect(rng, s, t + FRAME * j / len(sensors), xy) for j, s in enumerate(sensors)]
+        outputs.append(tracker.step(t + FRAME, scans))
+    return tracker, outputs
+
+
+def nearest_id(out, xy, radius=0.5):  # type: ignore[no-untyped-def]
+    """Id of the reported track nearest to ``xy`` within ``radius`` (None if none)."""
+    if not out.tracks:
+        return None
+    d = np.hypot(out.positions()[:, 0] - xy[0], out.positions()[:, 1] - xy[1])
+    i = int(np.argmin(d))
+    return out.tracks[i].id if d[i] < radius else None
+
+
+def test_three_walkers_two_crossing(rng: np.random.Generator) -> None:
+    times, X = crossing_truth(8.0)
+    _, outputs = run_tracker(rng, X, sensors_around(10.0, 8.0))
+    truth = [(t, np.arange(3), X[k]) for k, t in enumerate(times + FRAME)]
+    res = evaluate(truth, [(o.t, o.ids(), o.positions()) for o in outputs], c=1.0, skip=1.0)
+    assert res["ospa_p2_mean"] < 0.3
+    assert res["card_correct_fraction"] >= 0.9
+    assert res["id_switches"] == 0
+    # The same labels on both people before (t = 4 s) and after (t = 6.5 s) the crossing.
+    for person in (0, 1):
+        before = nearest_id(outputs[200], X[200, person])
+        after = nearest_id(outputs[325], X[325, person])
+        assert before is not None and before == after
+
+
+def test_target_outside_view_keeps_weight(rng: np.random.Generator) -> None:
+    looking = Sensor(
+        name="a",
+        origin=np.array([0.0, 0.0]),
+        boresight=math.pi / 4,
+        beamwidth=math.radians(100),
+        max_range=12.0,
+    )
+    away = Sensor(
+        name="b",
+        origin=np.array([10.0, 0.0]),
+        boresight=0.0,
+        beamwidth=math.radians(100),
+        max_range=12.0,
+    )
+    still = np.tile(np.array([[3.0, 3.0]]), (50, 1, 1))
+    tracker, outputs = run_tracker(rng, still, [looking])
+    assert len(outputs[-1].tracks) == 1
+    w_before = outputs[-1].tracks[0].w
+    track_id = outputs[-1].tracks[0].id
+    # Only the sensor that cannot see the person reports now (clutter, no detection).
+    _, later = run_tracker(rng, still, [away], tracker=tracker)
+    assert [tr.id for tr in later[-1].tracks] == [track_id]
+    assert later[-1].tracks[0].w == pytest.approx(w_before, rel=0.02)
+
+
+def test_new_target_born_within_half_a_second(rng: np.random.Generator) -> None:
+    times, X = crossing_truth(4.0)
+    alive = np.ones(X.shape[:2], dtype=bool)
+    appear = int(2.0 / FRAME)
+    alive[:appear, 2] = False
+    _, outputs = run_tracker(rng, X, sensors_around(10.0, 8.0), alive=alive)
+    assert nearest_id(outputs[appear - 1], X[appear - 1, 2]) is None
+    found = [nearest_id(outputs[k], X[k, 2]) is not None for k in range(appear, len(times))]
+    first = found.index(True)
+    assert first * FRAME <= 0.5
+    assert all(found[first + 5 :])
+
+
+def test_disappearing_target_dropped(rng: np.random.Generator) -> None:
+    times, X = crossing_truth(4.0)
+    alive = np.ones(X.shape[:2], dtype=bool)
+    leave = int(2.0 / FRAME)
+    alive[leave:, 2] = False
+    _, outputs = run_tracker(rng, X, sensors_around(10.0, 8.0), alive=alive)
+    assert nearest_id(outputs[leave - 1], X[leave - 1, 2]) is not None
+    gone = leave + int(0.5 / FRAME)
+    assert all(nearest_id(outputs[k], X[k, 2], radius=1.0) is None for k in range(gone, len(times)))
+    assert len(outputs[-1].tracks) == 2
+
+
+def test_clutter_only_reports_nothing(rng: np.random.Generator) -> None:
+    sensors = sensors_around(10.0, 8.0)
+    tracker = GmPhdTracker(CONFIG)
+    reported = 0
+    for k in range(100):
+        t = k * FRAME
+        scans = [detect(rng, s, t, np.zeros((0, 2))) for s in sensors]
+        reported += len(tracker.step(t, scans).tracks)
+    assert reported == 0
+
+
+def test_merge_keeps_heaviest_label() -> None:
+    w = np.array([0.3, 0.6, 0.2])
+    m = np.array([[0.0, 0, 0, 0], [0.05, 0, 0, 0], [5.0, 0, 5, 0]])
+    P = np.broadcast_to(np.eye(4) * 0.1, (3, 4, 4)).copy()
+    label = np.array([1, 2, 3])
+    w2, m2, P2, l2 = merge_components(w, m, P, label, threshold=4.0)
+    assert l2.tolist() == [2, 3]
+    assert w2 == pytest.approx([0.9, 0.2])
+    assert m2[0, 0] == pytest.approx((0.3 * 0.0 + 0.6 * 0.05) / 0.9)
+    # Moment matching adds the spread of the means.
+    assert P2[0, 0, 0] > 0.1
+    protected = np.array([True, True, False])
+    _, _, _, l3 = merge_components(w, m, P, label, 4.0, protected)
+    assert sorted(l3.tolist()) == [1, 2, 3]
+
+
+def test_scan_validates_shapes() -> None:
+    with pytest.raises(ValueError, match="cov has 1 matrices for 2 positions"):
+        SensorScan(
+            sensor="x",
+            t=0.0,
+            positions=np.zeros((2, 2)),
+            cov=np.zeros((1, 2, 2)),
+            origin=np.zeros(2),
+        )

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.spatial.distance import squareform
 
 from .base import (
     FloatArray,
@@ -95,14 +97,54 @@ class GmPhdConfig:
         sensors in a row may miss; a person who left is below it after a frame or two).
     confirm_steps : int
         Steps with summed weight above ``extract_threshold`` before a label is reported.
+    adapt_detection : bool
+        Learn each sensor's ``p_D`` online (beyond the chapter, which assumes it known): the
+        fraction of established tracks (label weight > 0.5) in the sensor's view that had a
+        measurement in their gate, exponentially averaged with rate ``adapt_rate`` from
+        ``detection_probability`` and kept within
+        ``[min_detection_probability, max_detection_probability]``. Real sensors differ
+        (through-wall sensors, distance, clutter suppression), and a ``p_D`` set too high makes
+        every miss cost a confirmed track most of its weight.
+    adapt_rate : float
+        Weight of one scan in the running ``p_D`` estimate.
+    min_detection_probability, max_detection_probability : float
+        Bounds of a learned ``p_D``.
+    occlusion_radius : float
+        A person shadows another for a sensor when they stand within this distance (m) of the
+        line of sight from the sensor to the other, and nearer: the shadowed component's ``p_D``
+        is multiplied by ``occluded_factor`` (the body attenuates the echo by 10-20 dB).
+    occluded_factor : float
+        ``p_D`` factor of a shadowed component.
+    fusion : str
+        ``"frame"`` (default; beyond the chapter): the position estimates of all sensors of one
+        TDMA frame are clustered (complete linkage, at most one estimate per sensor in a
+        cluster, diameter ``cluster_distance``) and fused into one measurement per cluster by
+        information-weighted averaging, then one GM-PHD update uses the probability that at
+        least one sensor detects the person, ``1 - prod_s (1 - p_D,s)``. Robust when each sensor
+        sees only some people (field of view, shadowing). ``"sequential"``: the iterated
+        corrector, one GM-PHD update per sensor scan.
+    cluster_distance : float
+        Largest distance (m) between two sensors' estimates of one person.
+    fused_noise_floor : float
+        Standard deviation (m) added to a fused measurement's covariance: the sensors' errors
+        are not independent (each sees the near side of the body).
+    extent_std : float
+        Standard deviation (m) of a person's scattering centres about the tracked body
+        centre, added to every measurement covariance: the radar sees the body's near side
+        and limbs, not its centre, whatever the node's ranging precision.
+    duplicate_distance, duplicate_velocity, duplicate_steps : float, float, int
+        Two labels whose estimates stay within ``duplicate_distance`` (m) and
+        ``duplicate_velocity`` (m/s) of each other for ``duplicate_steps`` consecutive steps
+        follow one person (an extended target seeded two births): the younger label is
+        folded into the older. People who cross differ in velocity and are never folded.
     """
 
     accel_psd: float = 0.5
     survival_probability: float = 0.95
-    detection_probability: float = 0.9
+    detection_probability: float = 0.5
     detection_probability_outside: float = 0.0
     fov_margin: float = 0.5
-    clutter_rate: float = 5.0
+    clutter_rate: float = 0.5
     surveillance_area: float | None = None
     birth_weight: float = 0.1
     birth_velocity_std: float = 1.0
@@ -115,6 +157,19 @@ class GmPhdConfig:
     extract_threshold: float = 0.5
     keep_threshold: float = 1e-3
     confirm_steps: int = 3
+    adapt_detection: bool = True
+    adapt_rate: float = 0.02
+    min_detection_probability: float = 0.2
+    max_detection_probability: float = 0.95
+    fusion: str = "frame"
+    cluster_distance: float = 0.6
+    fused_noise_floor: float = 0.05
+    extent_std: float = 0.2
+    duplicate_distance: float = 0.3
+    duplicate_velocity: float = 0.5
+    duplicate_steps: int = 10
+    occlusion_radius: float = 0.35
+    occluded_factor: float = 0.2
 
 
 @dataclass(slots=True)
@@ -223,6 +278,87 @@ def merge_components(
     return w_new, m_new, P_new, label[np.asarray(leaders)]
 
 
+def fuse_estimates(
+    z: FloatArray,
+    R: FloatArray,
+    owner: npt.NDArray[np.int64],
+    cluster_distance: float,
+    noise_floor: float,
+    anchors: FloatArray | None = None,
+    anchor_cov: FloatArray | None = None,
+    gate: float = 9.21,
+) -> tuple[FloatArray, FloatArray]:
+    """Group several sensors' position estimates of one frame per person and fuse each group.
+
+    A person is an extended target: sensors see different parts of the body, and one sensor
+    may report two estimates of one person, which breaks the GM-PHD's one-measurement-per-
+    target assumption. So estimates are grouped first: each estimate inside the gate
+    (squared Mahalanobis distance ``gate`` with ``anchor_cov + R``) of a predicted track
+    position (``anchors``) joins the nearest one; the rest are clustered by complete linkage
+    (``scipy.cluster.hierarchy``) with diameter ``cluster_distance``, two estimates of one
+    sensor never sharing a cluster. Each group is fused by information weighting,
+
+    .. math::
+
+        R_f = \\Big(\\sum_i R_i^{-1}\\Big)^{-1} + \\sigma_f^2 I,\\quad
+        z_f = \\Big(\\sum_i R_i^{-1}\\Big)^{-1} \\sum_i R_i^{-1} z_i .
+
+    Parameters
+    ----------
+    z : ndarray, (n, 2), world x, y, m.
+    R : ndarray, (n, 2, 2), covariances, m².
+    owner : ndarray, int, (n,), index of the sensor of each estimate.
+    anchors, anchor_cov : ndarray, (h, 2) and (h, 2, 2): predicted positions of established
+        tracks and their covariances, or None.
+
+    Returns
+    -------
+    (m, 2) fused positions and (m, 2, 2) covariances, m <= n.
+    """
+    n = z.shape[0]
+    if n == 0:
+        return z.reshape(0, 2), R.reshape(0, 2, 2)
+    labels = np.full(n, -1, dtype=np.int64)
+    n_groups = 0
+    if anchors is not None and anchors.shape[0]:
+        assert anchor_cov is not None
+        S = anchor_cov[:, None] + R[None]  # (h, n, 2, 2)
+        nu = z[None] - anchors[:, None]
+        det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
+        d2 = (
+            S[..., 1, 1] * nu[..., 0] ** 2
+            - 2.0 * S[..., 0, 1] * nu[..., 0] * nu[..., 1]
+            + S[..., 0, 0] * nu[..., 1] ** 2
+        ) / det
+        best = np.argmin(d2, axis=0)
+        inside = d2[best, np.arange(n)] < gate
+        labels[inside] = best[inside]
+        n_groups = anchors.shape[0]
+    rest = np.flatnonzero(labels < 0)
+    if rest.size == 1:
+        labels[rest] = n_groups
+    elif rest.size > 1:
+        zr, orr = z[rest], owner[rest]
+        d = np.linalg.norm(zr[:, None, :] - zr[None, :, :], axis=2)
+        d[orr[:, None] == orr[None, :]] = 1e6
+        np.fill_diagonal(d, 0.0)
+        tree = linkage(squareform(d, checks=False), method="complete")
+        labels[rest] = n_groups + fcluster(tree, t=cluster_distance, criterion="distance") - 1
+    _, labels = np.unique(labels, return_inverse=True)
+    det = R[:, 0, 0] * R[:, 1, 1] - R[:, 0, 1] * R[:, 1, 0]
+    info = np.empty_like(R)
+    info[:, 0, 0], info[:, 1, 1] = R[:, 1, 1] / det, R[:, 0, 0] / det
+    info[:, 0, 1], info[:, 1, 0] = -R[:, 0, 1] / det, -R[:, 1, 0] / det
+    m = int(labels.max()) + 1
+    info_sum = np.zeros((m, 2, 2))
+    np.add.at(info_sum, labels, info)
+    vec = np.zeros((m, 2))
+    np.add.at(vec, labels, np.einsum("nij,nj->ni", info, z))
+    Rf = np.linalg.inv(info_sum)  # batched 2x2 information sums, well conditioned
+    zf = np.einsum("nij,nj->ni", Rf, vec)
+    return zf, Rf + noise_floor**2 * np.eye(2)
+
+
 def _cap_label_weight(w: FloatArray, label: IntArray, cap: float) -> FloatArray:
     """Scale each label's components so that their summed weight is at most ``cap``."""
     _, inv = np.unique(label, return_inverse=True)
@@ -268,6 +404,9 @@ class GmPhdTracker(Tracker):
         self._hits: dict[int, int] = {}
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
+        self._dup_count: dict[tuple[int, int], int] = {}
+        #: Learned detection probability per sensor id (see ``adapt_detection``).
+        self.detection_probabilities: dict[str, float] = {}
 
     # -- recursion ----------------------------------------------------------------------
 
@@ -311,14 +450,25 @@ class GmPhdTracker(Tracker):
                 )
         return cfg.clutter_rate / area
 
-    def _update(self, scan: SensorScan) -> _Mixture:
-        """Correct the mixture with one scan; return the births it seeds."""
+    def _update(
+        self, scan: SensorScan, pd_frame: FloatArray | None = None, kappa: float | None = None
+    ) -> _Mixture:
+        """Correct the mixture with one scan; return the births it seeds.
+
+        With ``pd_frame`` (per component) and ``kappa`` given, ``scan`` holds a frame's fused
+        measurements and every component takes part with its own detection probability.
+        """
         cfg = self.config
         mix = self._mix
         z, R = scan.positions, scan.cov
+        if pd_frame is None:
+            R = R + cfg.extent_std**2 * np.eye(2)
         n_meas = z.shape[0]
         pd_out = cfg.detection_probability_outside
-        if mix.w.size:
+        if pd_frame is not None:
+            visible = pd_frame > 0.0
+            active = np.ones_like(visible)
+        elif mix.w.size:
             xy = mix.m[:, ::2]
             visible = in_field_of_view(scan, xy)
             # Components far outside the view are untouched when p_D,out = 0: keep them aside.
@@ -330,7 +480,13 @@ class GmPhdTracker(Tracker):
             visible = active = np.zeros(0, dtype=bool)
         act = mix.take(active)
         rest = mix.take(~active)
-        pd = np.where(visible[active], cfg.detection_probability, pd_out)
+        if pd_frame is not None:
+            pd = pd_frame
+        else:
+            pd_sensor = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
+            pd = np.where(visible[active], pd_sensor, pd_out)
+            if act.w.size > 1 and cfg.occluded_factor < 1.0:
+                pd = pd * np.where(self._occluded(scan, act), cfg.occluded_factor, 1.0)
 
         explained = np.zeros(n_meas)
         claimed = np.zeros(n_meas, dtype=bool)
@@ -347,7 +503,8 @@ class GmPhdTracker(Tracker):
             q = np.exp(-0.5 * d2) / (_TWO_PI * np.sqrt(det))
             num = np.where(gated, (pd * act.w)[:, None] * q, 0.0)  # (Ja, k)
             total = num.sum(axis=0)
-            kappa = self._clutter_intensity(scan)
+            if kappa is None:
+                kappa = self._clutter_intensity(scan)
             wdet = num / (kappa + total)
             explained = total / (kappa + total)
             # A measurement in the gate of a confirmed track seeds no birth, however light the
@@ -355,6 +512,8 @@ class GmPhdTracker(Tracker):
             owned = self._protected(act)
             if owned is not None:
                 claimed = (gated & owned[:, None]).any(axis=0)
+            if cfg.adapt_detection and pd_frame is None:
+                self._learn_detection(scan, act, visible[active], gated)
             jj, kk = np.nonzero(wdet > cfg.prune_threshold)
             if jj.size:
                 # K = P H^T S^{-1} with the closed-form 2x2 inverse of S.
@@ -391,6 +550,101 @@ class GmPhdTracker(Tracker):
         else:
             self._mix = rest
         return self._births_from(scan, explained, claimed)
+
+    def _frame_update(self, t: float, scans: Sequence[SensorScan]) -> _Mixture:
+        """One GM-PHD update with the fused measurements of a frame (``fusion = "frame"``)."""
+        cfg = self.config
+        z = np.concatenate([s.positions for s in scans])
+        R = np.concatenate([s.cov for s in scans]) + cfg.extent_std**2 * np.eye(2)
+        owner = np.repeat(np.arange(len(scans)), [s.positions.shape[0] for s in scans])
+        mix = self._mix
+        pd = np.zeros(mix.w.size)
+        if mix.w.size:
+            xy = mix.m[:, ::2]
+            miss = np.ones(mix.w.size)
+            heavy = mix.w > 0.5
+            near = np.linalg.norm(xy[heavy, None, :] - z[None, :, :], axis=2) < cfg.cluster_distance
+            for i, scan in enumerate(scans):
+                vis = in_field_of_view(scan, xy)
+                if not vis.any():
+                    continue
+                pd_s = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
+                pd_j = np.where(vis, pd_s, 0.0)
+                if cfg.occluded_factor < 1.0 and mix.w.size > 1:
+                    pd_j = pd_j * np.where(self._occluded(scan, mix), cfg.occluded_factor, 1.0)
+                miss *= 1.0 - pd_j
+                if cfg.adapt_detection:
+                    seen = vis[heavy]
+                    if seen.any():
+                        hit = near[:, owner == i].any(axis=1)[seen].mean()
+                        pd_s += cfg.adapt_rate * (hit - pd_s)
+                        self.detection_probabilities[scan.sensor] = float(
+                            min(
+                                max(pd_s, cfg.min_detection_probability),
+                                cfg.max_detection_probability,
+                            )
+                        )
+            pd = 1.0 - miss
+        anchors = anchor_cov = None
+        if mix.w.size:
+            # One predicted position per established label: its heaviest component.
+            est = mix.w > 0.5
+            if est.any():
+                order = np.flatnonzero(est)[np.argsort(-mix.w[est])]
+                _, first = np.unique(mix.label[order], return_index=True)
+                top = order[first]
+                anchors = mix.m[top][:, ::2]
+                anchor_cov = mix.P[top][:, ::2, ::2]
+        zf, Rf = fuse_estimates(
+            z, R, owner, cfg.cluster_distance, cfg.fused_noise_floor, anchors, anchor_cov
+        )
+        fused = SensorScan(sensor="*", t=t, positions=zf, cov=Rf, origin=np.zeros(2))
+        # Each sensor's false estimates spread over its own view: the intensities add up.
+        kappa = sum(self._clutter_intensity(scan) for scan in scans)
+        return self._update(fused, pd_frame=pd, kappa=kappa)
+
+    def _occluded(self, scan: SensorScan, mix: _Mixture) -> npt.NDArray[np.bool_]:
+        """Components shadowed, for ``scan``'s sensor, by a heavier component of another label
+        nearer to the sensor within ``occlusion_radius`` of the line of sight."""
+        cfg = self.config
+        xy = mix.m[:, ::2] - scan.origin  # (J, 2), relative to the sensor
+        heavy = mix.w > 0.3
+        if heavy.sum() == 0:
+            return np.zeros(mix.w.size, dtype=bool)
+        occ, occ_label = xy[heavy], mix.label[heavy]
+        dist = np.linalg.norm(xy, axis=1)  # (J,)
+        unit = xy / np.maximum(dist, 1e-9)[:, None]
+        along = occ @ unit.T  # (O, J): distance of each occluder along each line of sight
+        perp = np.abs(occ[:, 0, None] * unit[None, :, 1] - occ[:, 1, None] * unit[None, :, 0])
+        shadows = (
+            (along > 0.0)
+            & (along < dist[None, :] - 2.0 * cfg.occlusion_radius)
+            & (perp < cfg.occlusion_radius)
+            & (occ_label[:, None] != mix.label[None, :])
+        )
+        return shadows.any(axis=0)
+
+    def _learn_detection(
+        self,
+        scan: SensorScan,
+        mix: _Mixture,
+        visible: npt.NDArray[np.bool_],
+        gated: npt.NDArray[np.bool_],
+    ) -> None:
+        """Update the sensor's learned ``p_D`` with the fraction of the established labels in its
+        view (heaviest component above 0.5) that had a measurement in their gate."""
+        cfg = self.config
+        heavy = visible & (mix.w > 0.5)
+        labels = np.unique(mix.label[heavy])
+        if labels.size == 0:
+            return
+        hit_labels = np.unique(mix.label[gated.any(axis=1) & heavy])
+        rate = np.isin(labels, hit_labels).mean()
+        pd = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
+        pd += cfg.adapt_rate * (rate - pd)
+        self.detection_probabilities[scan.sensor] = float(
+            min(max(pd, cfg.min_detection_probability), cfg.max_detection_probability)
+        )
 
     def _births_from(
         self, scan: SensorScan, explained: FloatArray, claimed: npt.NDArray[np.bool_]
@@ -442,7 +696,15 @@ class GmPhdTracker(Tracker):
             )
             self._births = _Mixture.empty()
         births = []
-        for scan in sorted(scans, key=lambda s: s.t):
+        if self.config.fusion == "frame" and scans:
+            tf = max(s.t for s in scans)
+            if tf > self._t:
+                self._predict(tf - self._t)
+                self._t = tf
+            b = self._frame_update(tf, scans)
+            if b.w.size:
+                births.append(b)
+        for scan in sorted(scans, key=lambda s: s.t) if self.config.fusion != "frame" else ():
             if scan.t > self._t:
                 self._predict(scan.t - self._t)
                 self._t = scan.t
@@ -470,7 +732,40 @@ class GmPhdTracker(Tracker):
         mix = self._mix
         if mix.w.size > self.config.max_components:
             self._mix = mix.take(np.argsort(-mix.w)[: self.config.max_components])
+        self._fold_duplicate_labels()
         return self._extract(t)
+
+    def _fold_duplicate_labels(self) -> None:
+        """Fold labels that follow one person into the oldest (see ``duplicate_steps``)."""
+        cfg = self.config
+        mix = self._mix
+        if mix.w.size < 2 or cfg.duplicate_steps <= 0:
+            self._dup_count.clear()
+            return
+        order = np.lexsort((-mix.w, mix.label))
+        lab = mix.label[order]
+        first = np.ones(lab.size, dtype=bool)
+        first[1:] = lab[1:] != lab[:-1]
+        heads = order[first]
+        heads = heads[mix.w[heads] > 0.2]
+        labels = mix.label[heads]
+        if labels.size < 2:
+            self._dup_count.clear()
+            return
+        m = mix.m[heads]
+        dp = np.linalg.norm(m[:, None, ::2] - m[None, :, ::2], axis=2)
+        dv = np.linalg.norm(m[:, None, 1::2] - m[None, :, 1::2], axis=2)
+        close = np.triu((dp < cfg.duplicate_distance) & (dv < cfg.duplicate_velocity), 1)
+        counts: dict[tuple[int, int], int] = {}
+        for i, j in zip(*np.nonzero(close), strict=True):
+            a, b = sorted((int(labels[i]), int(labels[j])))
+            counts[(a, b)] = self._dup_count.get((a, b), 0) + 1
+        self._dup_count = counts
+        for (a, b), n in counts.items():
+            if n >= cfg.duplicate_steps:
+                mix.label[mix.label == b] = a
+                self._confirmed.discard(b)
+                self._hits.pop(b, None)
 
     def _extract(self, t: float) -> TrackerOutput:
         """Labelled estimates: per label, the heaviest component; sum of weights as ``w``."""

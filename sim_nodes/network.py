@@ -1,0 +1,262 @@
+"""The simulated sensor network: node descriptions, TDMA schedule, acquisitions, truth.
+
+:class:`SimNetwork` is the pure core the simulated driver and the recorder wrap: no
+zenoh, no files, no clocks (time ``t`` is an argument). Each bat node's own transmitter
+illuminates the scene; its two receivers record
+
+.. math:: h_r = \\mathrm{irfft}(G (C^{static}_r + C^{people}_r(t)) + V_r)
+
+where the static channel (coupling and wall reflections up to order 2) is computed once
+per node and only the people's single-bounce paths are computed per call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from sim_nodes.channel import (
+    Antennas,
+    Crowd,
+    Fluctuation,
+    Walls,
+    image_paths,
+    make_walker,
+    scatter_paths,
+)
+from sim_nodes.radar import MSequenceRadar
+from sim_nodes.scene import NodeModel, Scenario, load_scenario
+
+#: Default bat-node antennas: name -> (pos in node frame [m], tx, rx).
+BAT_ANTENNAS: dict[str, tuple[tuple[float, float, float], bool, bool]] = {
+    "tx": ((0.0, 0.0, 0.0), True, False),
+    "rx1": ((0.0, 0.5, 0.0), False, True),
+    "rx2": ((0.0, -0.5, 0.0), False, True),
+}
+#: Horn 3 dB beamwidth, rad (about 100 degrees).
+BAT_BEAMWIDTH = 1.75
+
+#: Sign of a body point's echo: reflection off a high-permittivity body (Gamma < 0).
+BODY_REFLECTION_SIGN = -1.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Node:
+    id: str
+    pose: tuple[float, float, float, float]
+    antennas: dict[str, dict]
+    tx: Antennas
+    rx: Antennas
+    rx_names: tuple[str, ...]
+
+
+def _build_node(model: NodeModel) -> _Node:
+    x, y, z, yaw = model.pose
+    antennas = {}
+    for name, (pos, is_tx, is_rx) in BAT_ANTENNAS.items():
+        ov = model.antennas.get(name)
+        antennas[name] = {
+            "pos": [float(v) for v in (ov.pos if ov and ov.pos else pos)],
+            "tx": is_tx,
+            "rx": is_rx,
+            "boresight": float(ov.boresight if ov and ov.boresight is not None else 0.0),
+            "beamwidth": float(ov.beamwidth if ov and ov.beamwidth else BAT_BEAMWIDTH),
+        }
+    c, s = np.cos(yaw), np.sin(yaw)
+
+    def world(names: list[str]) -> Antennas:
+        pos = np.array([antennas[n]["pos"] for n in names], float)
+        xy = np.stack([x + c * pos[:, 0] - s * pos[:, 1], y + s * pos[:, 0] + c * pos[:, 1]], 1)
+        return Antennas(
+            position=np.concatenate([xy, z + pos[:, 2:3]], axis=1),
+            boresight=yaw + np.array([antennas[n]["boresight"] for n in names]),
+            beamwidth=np.array([antennas[n]["beamwidth"] for n in names]),
+        )
+
+    rx_names = tuple(n for n, a in antennas.items() if a["rx"])
+    return _Node(
+        id=model.id,
+        pose=(float(x), float(y), float(z), float(yaw)),
+        antennas=antennas,
+        tx=world(["tx"]),
+        rx=world(list(rx_names)),
+        rx_names=rx_names,
+    )
+
+
+class SimNetwork:
+    """A network of simulated static bat-type nodes in a scenario.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        A validated scenario, or a shipped name / path for :func:`load_scenario`.
+    seed : int
+        Master seed. Body details come from one child of ``SeedSequence(seed)``; each node
+        (in scenario order) gets its own child generator for noise and amplitude
+        fluctuation, so a node's output depends only on the seed and the times at which
+        that node was acquired.
+    """
+
+    def __init__(self, scenario: Scenario | str, seed: int) -> None:
+        if isinstance(scenario, str):
+            scenario = load_scenario(scenario)
+        self.scenario = scenario
+        self.seed = seed
+        self.radar = MSequenceRadar(scenario.radar.config())
+        ch = scenario.channel
+        mats = scenario.materials
+        walls = scenario.walls
+        self.walls = (
+            Walls(
+                start=np.array([w.start for w in walls], float),
+                end=np.array([w.end for w in walls], float),
+                height=np.array([w.height for w in walls], float),
+                reflection=np.array([mats[w.material].reflection for w in walls], float),
+                transmission=10
+                ** (-np.array([mats[w.material].transmission_loss_db for w in walls]) / 20),
+                excess=np.array(
+                    [w.thickness * (np.sqrt(mats[w.material].permittivity) - 1) for w in walls]
+                ),
+            )
+            if walls
+            else Walls.empty()
+        )
+        children = np.random.SeedSequence(seed).spawn(len(scenario.nodes) + 1)
+        scene_rng = np.random.default_rng(children[0])
+        self.crowd = Crowd(
+            [
+                make_walker(
+                    person_id=p.id,
+                    waypoints=p.waypoints,
+                    speed=p.speed,
+                    bounce=p.mode == "bounce",
+                    enter=p.enter,
+                    leave=p.leave,
+                    radius=p.radius,
+                    rcs=p.rcs,
+                    height=p.height,
+                    n_scatterers=p.n_scatterers,
+                    breathing_rate=ch.breathing_rate,
+                    rng=scene_rng,
+                )
+                for p in scenario.people
+            ],
+            breathing_amplitude=ch.breathing_amplitude,
+            gait_amplitude=ch.gait_amplitude,
+        )
+        self._nodes = {m.id: _build_node(m) for m in scenario.nodes}
+        self._rng = {
+            nid: np.random.default_rng(child)
+            for nid, child in zip(self._nodes, children[1:], strict=True)
+        }
+        self._fluct = {
+            nid: Fluctuation(self.crowd.n_points, ch.fluctuation_time, self._rng[nid])
+            for nid in self._nodes
+        }
+        # Static nodes: coupling + walls never change, so their spectrum is computed once.
+        self._static = {
+            nid: self.radar.path_spectrum(
+                *image_paths(node.tx, node.rx, self.walls, ch.reflection_order)
+            )
+            for nid, node in self._nodes.items()
+        }
+
+    @property
+    def node_ids(self) -> list[str]:
+        """Node ids in scenario order."""
+        return list(self._nodes)
+
+    def node_infos(self) -> dict[str, dict]:
+        """PROTOCOL.md ``node_info`` fields (without the header) per node id."""
+        cfg = self.radar.config
+        radar = {
+            "fs": float(cfg.fs),
+            "n": int(cfg.n),
+            "t0": float(cfg.t0),
+            "f_low": float(cfg.f_low),
+            "f_high": float(cfg.f_high),
+            "rate": float(cfg.rate),
+        }
+        return {
+            nid: {
+                "role": "bat",
+                "pose": list(node.pose),
+                "mobile": False,
+                "antennas": {k: dict(v, pos=list(v["pos"])) for k, v in node.antennas.items()},
+                "radar": dict(radar),
+            }
+            for nid, node in self._nodes.items()
+        }
+
+    def schedule(self) -> list[dict]:
+        """TDMA slots: one per node (its ``tx``), equal shares of the frame, scenario order."""
+        period = self.scenario.frame_period
+        dur = period / len(self._nodes)
+        return [
+            {"slot": i, "tx": f"{nid}/tx", "start": i * dur, "duration": dur}
+            for i, nid in enumerate(self._nodes)
+        ]
+
+    def truth(self, t: float) -> list[dict]:
+        """Ground truth ``{id, x, y, vx, vy}`` of the people present at time t, s."""
+        return self.crowd.truth(t)
+
+    def people_spectrum(self, node: str, t: float) -> np.ndarray:
+        """Channel spectrum of the people's echoes at ``node`` (advances its fluctuation).
+
+        Returns
+        -------
+        ndarray, complex128, shape (n_rx, n_bins)
+        """
+        nd = self._nodes[node]
+        amp_fluct = self._fluct[node].step(t)
+        body = self.crowd.scatterers(t)
+        n_rx = nd.rx.position.shape[0]
+        if body.points.shape[0] == 0:
+            return np.zeros((n_rx, self.radar.n_bins), complex)
+        delays, amps = scatter_paths(
+            nd.tx,
+            nd.rx,
+            body.points,
+            body.rcs,
+            self.walls,
+            normals=body.normals,
+            owner=body.owner,
+            blockers=body.centres,
+            blocker_radius=body.radius,
+            shadow_db=self.scenario.channel.shadow_db,
+        )
+        amps = amps * (BODY_REFLECTION_SIGN * amp_fluct[body.index])[None, :]
+        return self.radar.path_spectrum(delays, amps)
+
+    def acquire(self, node: str, t: float) -> tuple[str, tuple[str, ...], npt.NDArray[np.float32]]:
+        """One acquisition of ``node``'s own transmitter at its receivers.
+
+        Parameters
+        ----------
+        node : str
+            Node id.
+        t : float
+            Network time of the acquisition, s.
+
+        Returns
+        -------
+        tx : str
+            ``"{node}/tx"``.
+        rx : tuple of str
+            Receiver names, one per row of ``h`` (``("rx1", "rx2")``).
+        h : ndarray, float32, shape (n_rx, n)
+            Impulse responses, sample k at ``t0 + k / fs`` after emission.
+        """
+        if node not in self._nodes:
+            raise KeyError(f"unknown node {node!r}")
+        spec = self._static[node] + self.people_spectrum(node, t)
+        h = self.radar.impulse_response(spec, self._rng[node])
+        return f"{node}/tx", self._nodes[node].rx_names, h
+
+    def static_response(self, node: str) -> npt.NDArray[np.float32]:
+        """Noise-free background (coupling + walls) of ``node``, float32 (n_rx, n)."""
+        return self.radar.impulse_response(self._static[node])

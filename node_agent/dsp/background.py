@@ -14,7 +14,7 @@ class ExponentialBackgroundSubtractor:
 
     .. math::
 
-        y_k = h_k - b_{k-1}, \\qquad b_k = b_{k-1} + \\alpha\\, y_k = (1-\\alpha) b_{k-1} + \\alpha h_k
+        y_k = h_k - b_{k-1}, \\qquad b_k = b_{k-1} + \\alpha y_k = (1-\\alpha) b_{k-1} + \\alpha h_k
 
     so that echoes that stay put for many more than ``1/alpha`` impulse responses vanish
     from ``y_k`` while moving people remain. Complex baseband is subtracted coherently.

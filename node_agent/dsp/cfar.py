@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import numpy.typing as npt
-from scipy.ndimage import maximum_filter1d
 from scipy.special import erfcinv
 
 FloatArray = npt.NDArray[np.float64]
@@ -20,8 +21,9 @@ class GaussianCfarDetector:
     After background subtraction, the sample :math:`y_k` of range bin ``k`` is modelled
     under "no target" as Gaussian with mean :math:`\\mu_k` and variance :math:`\\sigma_k^2`,
     both tracked over time by exponential averaging (so residuals of imperfectly removed
-    clutter raise the threshold locally). For a false-alarm probability :math:`P_{fa}` per
-    sample the Neyman-Pearson test on the Gaussian tail is
+    clutter raise the threshold locally). For real signals :math:`\\mu_k = 0`: the
+    background subtraction already removes the exponential mean. For a false-alarm
+    probability :math:`P_{fa}` per sample the Neyman-Pearson test on the Gaussian tail is
 
     .. math::
 
@@ -48,6 +50,13 @@ class GaussianCfarDetector:
         Forgetting factor of the noise mean/variance averages.
     complex_input : bool
         True when the input is complex baseband (the test runs on magnitudes).
+    censor : float
+        Fraction of ``alpha`` at which bins that cross the threshold update their
+        statistics.
+    clip_sigma : float
+        Squared deviations enter the variance average clipped at ``clip_sigma**2``
+        times the variance: echoes below the threshold then raise it only slowly
+        (the clipping biases a Gaussian variance by under 3 % at 3 sigma).
     """
 
     def __init__(
@@ -60,11 +69,17 @@ class GaussianCfarDetector:
         max_range: float = np.inf,
         alpha: float = 0.05,
         complex_input: bool = False,
+        censor: float = 0.1,
+        clip_sigma: float = 3.0,
     ) -> None:
         if not 0.0 < pfa < 0.5:
             raise ValueError(f"pfa must be in (0, 0.5), got {pfa}")
         self.pfa = float(pfa)
         self.alpha = float(alpha)
+        self.censor = float(censor)
+        self._clip2 = np.float32(clip_sigma**2)
+        self._alpha_noise = np.float32(self.alpha)
+        self._alpha_crossing = np.float32(self.alpha * self.censor)
         self.complex_input = bool(complex_input)
         self._ranges = np.asarray(ranges, dtype=np.float64)
         m = self._ranges.size
@@ -73,15 +88,21 @@ class GaussianCfarDetector:
         # magnitudes; squared because the test runs on squared deviations (no sqrt per bin)
         tail = self.pfa if not self.complex_input else 2.0 * self.pfa
         self.threshold_factor = float(np.sqrt(2.0) * erfcinv(tail))
-        k2 = self.threshold_factor**2
-        min_r = np.atleast_1d(np.asarray(min_range, dtype=np.float64))[:, None]
-        valid = (self._ranges[None, :] >= min_r) & (self._ranges[None, :] <= max_range)
-        # an infinite factor switches a bin off without a separate mask operation
-        self._k2 = np.where(valid, k2, np.inf).astype(np.float32)
+        self._max_range = float(max_range)
+        self.set_min_range(min_range)
         self._half = max(1, round(pulse_width / abs(self._step)))
+        self._offsets = np.arange(-self._half, self._half + 1)
+        self._rate = np.empty(0, dtype=np.float32)
         self._mean: npt.NDArray[np.float32] | None = None
         self._var: npt.NDArray[np.float32] | None = None
-        self._floor = np.float32(0.0)
+        self._floor = np.empty(0, dtype=np.float32)
+
+    def set_min_range(self, min_range: float | FloatArray) -> None:
+        """Change the per-receiver shortest searched range, m (geometry change)."""
+        min_r = np.atleast_1d(np.asarray(min_range, dtype=np.float64))[:, None]
+        valid = (self._ranges[None, :] >= min_r) & (self._ranges[None, :] <= self._max_range)
+        # an infinite factor switches a bin off without a separate mask operation
+        self._k2 = np.where(valid, self.threshold_factor**2, np.inf).astype(np.float32)
 
     def reset(self) -> None:
         """Forget the noise statistics."""
@@ -111,45 +132,77 @@ class GaussianCfarDetector:
         else:
             s = y.astype(np.float32, copy=False)
         empty = tuple(np.empty(0) for _ in range(n_rx))
+        if s.shape[1] == 0:  # the searched window is empty (guard beyond the window)
+            return empty, empty
         if self._var is None:
             # initialise from a robust noise-floor estimate of this frame; an all-zero
             # frame (the background subtractor's first output) carries no information
             mean = np.median(s, axis=1, keepdims=True) if self.complex_input else 0.0
             d0 = s - mean
             var0 = np.median(d0 * d0, axis=1, keepdims=True) / _CHI2_1_MEDIAN
-            if not np.all(var0 > 0):
+            if not np.any(var0 > 0):
                 return empty, empty
-            self._floor = np.float32(1e-6 * float(np.min(var0)))
+            # a silent receiver row (all zeros) gets the floor and stays silent
+            var0 = np.maximum(var0, 1e-6 * float(np.max(var0)))
             self._var = np.repeat(var0, s.shape[1], axis=1).astype(np.float32)
+            # an array floor: a ufunc with a scalar operand pays a dtype resolution
+            self._floor = np.full_like(self._var, 1e-6 * float(np.min(var0)))
+            self._rate = np.empty_like(self._var)
             if self.complex_input:
                 self._mean = np.repeat(mean, s.shape[1], axis=1).astype(np.float32)
         var = self._var
         if self._mean is not None:
             d = s - self._mean
             self._mean += self.alpha * d
-            d2 = d * d
-            d2[d < 0] = 0.0  # magnitudes below the mean are never echoes (one-sided)
+            stat = d * d
+            # magnitudes below the mean are never echoes: one-sided test
+            d2 = np.where(d > 0, stat, np.float32(0.0))
         else:
-            d2 = s * s
+            d2 = stat = s * s
         limit = self._k2 * var
         crossing = d2 > limit
-        peaks = crossing & (d2 >= maximum_filter1d(d2, 2 * self._half + 1, axis=1))
-        # statistics after the test; clipping at the threshold keeps echoes from
-        # inflating the variance of their own bins, while clutter residuals still raise it
-        np.minimum(d2, np.where(crossing, limit, d2), out=limit)
-        var += self.alpha * (limit - var)
-        np.maximum(var, self._floor, out=var)
-
-        rows, cols = np.nonzero(peaks)
-        if rows.size == 0:
-            return empty, empty
+        # crossings are sparse: the peak search and the censoring mask work on their
+        # indices only, with a (k, 2*half+1) neighbourhood gathered around each
+        # flat indices: nonzero of a raveled mask is several times faster than 2-D
+        idx = crossing.ravel().nonzero()[0]
         m = s.shape[1]
-        amp = np.sqrt(d2[rows, cols].astype(np.float64))
-        a_m = np.sqrt(d2[rows, np.maximum(cols - 1, 0)].astype(np.float64))
-        a_p = np.sqrt(d2[rows, np.minimum(cols + 1, m - 1)].astype(np.float64))
+        rows = idx // m
+        cols = idx - rows * m
+        cols_nb = cols[:, None] + self._offsets
+        np.minimum(cols_nb, m - 1, out=cols_nb)
+        np.maximum(cols_nb, 0, out=cols_nb)
+        flat_nb = cols_nb + (rows * m)[:, None]
+        # statistics after the test, clipped, and censored: bins within a pulse width
+        # of a crossing update only at the slow rate, so a passing person
+        # does not mask itself, while clutter residuals that keep crossing still raise
+        # their local threshold
+        rate = self._rate
+        rate.fill(self._alpha_noise)
+        rate.ravel()[flat_nb] = self._alpha_crossing
+        np.multiply(var, self._clip2, out=limit)
+        np.minimum(stat, limit, out=limit)
+        limit -= var
+        limit *= rate
+        var += limit
+        np.maximum(var, self._floor, out=var)
+        if idx.size == 0:
+            return empty, empty
+
+        nb = d2.ravel()[flat_nb]  # (k, 2*half+1)
+        # a crossing is a peak when it is the maximum within one pulse width
+        is_peak = nb[:, self._half] >= nb.max(axis=1)
+        rows, cols, nb = rows[is_peak], cols[is_peak], nb[is_peak].astype(np.float64)
+        # equal neighbours (plateau) would give two peaks a sample apart: keep the first
+        dup = np.zeros(rows.size, dtype=bool)
+        dup[1:] = ((cols[1:] - cols[:-1]) <= self._half) & (rows[1:] == rows[:-1])
+        if dup.any():
+            rows, cols, nb = rows[~dup], cols[~dup], nb[~dup]
+        env = np.sqrt(nb[:, self._half - 1 : self._half + 2])
+        a_m, amp, a_p = env[:, 0], env[:, 1], env[:, 2]
         # parabola through the envelope around the peak: sub-sample delay
         den = a_m - 2.0 * amp + a_p
         frac = np.where(den < 0, 0.5 * (a_m - a_p) / np.where(den < 0, den, -1.0), 0.0)
-        r = self._ranges[cols] + np.clip(frac, -0.5, 0.5) * self._step
-        splits = np.searchsorted(rows, np.arange(1, n_rx))
-        return tuple(np.split(r, splits)), tuple(np.split(amp, splits))
+        r = self._ranges[cols] + np.minimum(np.maximum(frac, -0.5), 0.5) * self._step
+        bounds = np.searchsorted(rows, np.arange(n_rx + 1)).tolist()
+        spans = list(itertools.pairwise(bounds))
+        return tuple(r[a:b] for a, b in spans), tuple(amp[a:b] for a, b in spans)

@@ -109,6 +109,8 @@ class SensorGeometry:
     rx_names: tuple[str, ...] = field(default=())
     boresight: float = 0.0
     beamwidth: float = 2.0 * np.pi
+    _centre: FloatArray = field(init=False, repr=False)
+    _boresight_dir: tuple[float, float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         tx = np.asarray(self.tx, dtype=np.float64).reshape(3)
@@ -124,6 +126,12 @@ class SensorGeometry:
         object.__setattr__(self, "tx", tx)
         object.__setattr__(self, "rx", rx)
         object.__setattr__(self, "rx_names", names)
+        # derived once: the field-of-view test runs per impulse response
+        centre = np.vstack([tx[None, :2], rx[:, :2]]).mean(axis=0)
+        centre.flags.writeable = False
+        object.__setattr__(self, "_centre", centre)
+        direction = (float(np.cos(self.boresight)), float(np.sin(self.boresight)))
+        object.__setattr__(self, "_boresight_dir", direction)
 
     @classmethod
     def from_pose(
@@ -170,7 +178,7 @@ class SensorGeometry:
     @property
     def centre(self) -> FloatArray:
         """Array centre in world x, y (m), mean of all antenna positions, shape (2,)."""
-        return np.vstack([self.tx[None, :2], self.rx[:, :2]]).mean(axis=0)
+        return self._centre
 
     def direct_ranges(self) -> FloatArray:
         """Direct-path (coupling) range Tx -> Rx of each receiver, m, shape (n_rx,)."""
@@ -196,8 +204,8 @@ class SensorGeometry:
         half = 0.5 * self.beamwidth + margin
         if half >= np.pi:
             return np.ones(p.shape[0], dtype=bool)
-        d = p - self.centre
-        bearing = np.arctan2(d[:, 1], d[:, 0]) - self.boresight
-        # wrap to (-pi, pi] so headings near +-pi compare correctly
-        off = np.abs(np.angle(np.exp(1j * bearing)))
-        return off <= half
+        d = p - self._centre
+        # cos(bearing - boresight) >= cos(half): dot products instead of angles
+        c, s = self._boresight_dir
+        along = d[:, 0] * c + d[:, 1] * s
+        return along >= np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) * np.cos(half)

@@ -32,10 +32,14 @@ class FusionCoreConfig:
     frame_lag : a frame is processed when a detection of frame ``f + frame_lag`` arrives.
     max_range : the distance (m) from a sensor up to which it is expected to detect a person;
         capped by the radar's window (half its longest bistatic range).
+    view_margin : angle (rad) added on each side of a sensor's 3 dB beam for the tracker's
+        field of view: antennas still see people somewhat outside it (the node DSP keeps
+        intersections up to its ``fov_margin`` beyond the beam).
     """
 
     frame_lag: int = 2
     max_range: float = 15.0
+    view_margin: float = 0.35
 
 
 @dataclasses.dataclass(slots=True)
@@ -78,7 +82,9 @@ class FusionCore:
         if view is None:
             info = self.nodes[det.src]
             geom = sensor_geometry(info, det.tx, rx, self.nodes)
-            view = (geom.centre, geom.boresight, geom.beamwidth)
+            # The node keeps estimates up to its DSP's margin beyond the 3 dB beam.
+            width = min(2.0 * math.pi, geom.beamwidth + 2.0 * self.config.view_margin)
+            view = (geom.centre, geom.boresight, width)
             self._views[key] = view
         return view
 

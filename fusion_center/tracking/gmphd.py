@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import squareform
 
 from .base import (
@@ -97,6 +98,10 @@ class GmPhdConfig:
         sensors in a row may miss; a person who left is below it after a frame or two).
     confirm_steps : int
         Steps with summed weight above ``extract_threshold`` before a label is reported.
+    coast_time : float
+        A confirmed track whose weight fell below ``keep_threshold`` is still reported, at its
+        predicted state, for this long (s): people near walls or shadowed may go unseen by
+        every sensor for a few frames.
     adapt_detection : bool
         Learn each sensor's ``p_D`` online (beyond the chapter, which assumes it known): the
         fraction of established tracks (label weight > 0.5) in the sensor's view that had a
@@ -128,6 +133,11 @@ class GmPhdConfig:
     fused_noise_floor : float
         Standard deviation (m) added to a fused measurement's covariance: the sensors' errors
         are not independent (each sees the near side of the body).
+    maneuver_weight, maneuver_velocity_std : float
+        Share of an established component's weight given each prediction to a copy with the
+        velocity reset (standard deviation in m/s): see :meth:`GmPhdTracker._predict`.
+    clutter_coincidence : float
+        Factor on the clutter intensity per additional sensor in a fused measurement.
     extent_std : float
         Standard deviation (m) of a person's scattering centres about the tracked body
         centre, added to every measurement covariance: the radar sees the body's near side
@@ -155,8 +165,9 @@ class GmPhdConfig:
     max_components: int = 200
     max_label_weight: float = 1.0
     extract_threshold: float = 0.5
-    keep_threshold: float = 1e-3
+    keep_threshold: float = 0.4
     confirm_steps: int = 3
+    coast_time: float = 0.25
     adapt_detection: bool = True
     adapt_rate: float = 0.02
     min_detection_probability: float = 0.2
@@ -164,10 +175,13 @@ class GmPhdConfig:
     fusion: str = "frame"
     cluster_distance: float = 0.6
     fused_noise_floor: float = 0.05
+    clutter_coincidence: float = 0.05
+    maneuver_weight: float = 0.05
+    maneuver_velocity_std: float = 1.0
     extent_std: float = 0.2
     duplicate_distance: float = 0.3
     duplicate_velocity: float = 0.5
-    duplicate_steps: int = 10
+    duplicate_steps: int = 50
     occlusion_radius: float = 0.35
     occluded_factor: float = 0.2
 
@@ -218,7 +232,8 @@ def merge_components(
         \\tilde P = \\frac{1}{\\tilde w}\\sum_i w_i \\left(P_i + (\\tilde m - m_i)
         (\\tilde m - m_i)^T\\right)
 
-    and the merged component keeps the label of ``l``. Two components whose (different)
+    and the merged component keeps the label of ``l``, or of the heaviest ``protected``
+    member when there is one. Two components whose (different)
     labels are both ``protected`` (confirmed tracks) are never merged: two people crossing
     share a position for a moment and their velocity estimates may be close. All pairwise
     distances come from one batched solve; the only Python loop runs over the clusters.
@@ -275,7 +290,15 @@ def merge_components(
     d = mg - m_new[assign[grouped]]
     spread = Pg + d[:, :, None] * d[:, None, :]
     P_new = np.add.reduceat(wg[:, None, None] * spread, starts) / w_new[:, None, None]
-    return w_new, m_new, P_new, label[np.asarray(leaders)]
+    label_new = label[np.asarray(leaders)]
+    if protected is not None:
+        # A cluster with a confirmed track keeps that track's label (its heaviest one), even
+        # when a younger, heavier component joined it: the person keeps the id.
+        idx = np.flatnonzero(prot)
+        if idx.size:
+            clusters, first = np.unique(assign[idx], return_index=True)
+            label_new[clusters] = label[idx[first]]
+    return w_new, m_new, P_new, label_new
 
 
 def fuse_estimates(
@@ -290,11 +313,11 @@ def fuse_estimates(
 ) -> tuple[FloatArray, FloatArray]:
     """Group several sensors' position estimates of one frame per person and fuse each group.
 
-    A person is an extended target: sensors see different parts of the body, and one sensor
-    may report two estimates of one person, which breaks the GM-PHD's one-measurement-per-
-    target assumption. So estimates are grouped first: each estimate inside the gate
-    (squared Mahalanobis distance ``gate`` with ``anchor_cov + R``) of a predicted track
-    position (``anchors``) joins the nearest one; the rest are clustered by complete linkage
+    A person is an extended target: sensors see different parts of the body, which breaks the
+    GM-PHD's one-measurement-per-target assumption. So estimates are grouped first: each
+    sensor's estimates are assigned one-to-one to the predicted track positions (``anchors``)
+    whose gate they are in (squared Mahalanobis distance ``gate`` with ``anchor_cov + R``),
+    minimising the total distance; the rest are clustered by complete linkage
     (``scipy.cluster.hierarchy``) with diameter ``cluster_distance``, two estimates of one
     sensor never sharing a cluster. Each group is fused by information weighting,
 
@@ -313,11 +336,12 @@ def fuse_estimates(
 
     Returns
     -------
-    (m, 2) fused positions and (m, 2, 2) covariances, m <= n.
+    (m, 2) fused positions, (m, 2, 2) covariances (m <= n), and (n,) the fused measurement
+    each estimate went into.
     """
     n = z.shape[0]
     if n == 0:
-        return z.reshape(0, 2), R.reshape(0, 2, 2)
+        return z.reshape(0, 2), R.reshape(0, 2, 2), np.zeros(0, dtype=np.int64)
     labels = np.full(n, -1, dtype=np.int64)
     n_groups = 0
     if anchors is not None and anchors.shape[0]:
@@ -330,9 +354,15 @@ def fuse_estimates(
             - 2.0 * S[..., 0, 1] * nu[..., 0] * nu[..., 1]
             + S[..., 0, 0] * nu[..., 1] ** 2
         ) / det
-        best = np.argmin(d2, axis=0)
-        inside = d2[best, np.arange(n)] < gate
-        labels[inside] = best[inside]
+        # One estimate per sensor and track: each sensor's estimates are assigned to the
+        # tracks one-to-one (minimum total distance), so two people who pass close to each
+        # other keep one measurement each whenever a sensor resolves them.
+        cost = np.where(d2 < gate, d2, 1e6)
+        for s in np.unique(owner):
+            cols = np.flatnonzero(owner == s)
+            rows, picked = linear_sum_assignment(cost[:, cols])
+            ok = cost[rows, cols[picked]] < gate
+            labels[cols[picked[ok]]] = rows[ok]
         n_groups = anchors.shape[0]
     rest = np.flatnonzero(labels < 0)
     if rest.size == 1:
@@ -356,7 +386,7 @@ def fuse_estimates(
     np.add.at(vec, labels, np.einsum("nij,nj->ni", info, z))
     Rf = np.linalg.inv(info_sum)  # batched 2x2 information sums, well conditioned
     zf = np.einsum("nij,nj->ni", Rf, vec)
-    return zf, Rf + noise_floor**2 * np.eye(2)
+    return zf, Rf + noise_floor**2 * np.eye(2), labels
 
 
 def _cap_label_weight(w: FloatArray, label: IntArray, cap: float) -> FloatArray:
@@ -405,6 +435,7 @@ class GmPhdTracker(Tracker):
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
         self._dup_count: dict[tuple[int, int], int] = {}
+        self._last_strong: dict[int, float] = {}
         #: Learned detection probability per sensor id (see ``adapt_detection``).
         self.detection_probabilities: dict[str, float] = {}
 
@@ -422,14 +453,34 @@ class GmPhdTracker(Tracker):
         return cached
 
     def _predict(self, dt: float) -> None:
-        """Vo & Ma eq. (16)-(17): ``w ← p_S w``, ``m ← F m``, ``P ← F P F^T + Q``."""
+        """Vo & Ma eq. (16)-(17): ``w ← p_S w``, ``m ← F m``, ``P ← F P F^T + Q``.
+
+        Beyond the chapter, the motion model is a two-part mixture: established components
+        (weight > 0.3) also spawn a *manoeuvre* copy, with ``maneuver_weight`` of the weight,
+        the predicted position and the velocity reset to zero with standard deviation
+        ``maneuver_velocity_std``. A person who stops or turns back is caught by it under the
+        same label instead of being lost and re-born under a new one.
+        """
         if dt <= 0.0 or self._mix.w.size == 0:
             return
+        cfg = self.config
         F, Ft, Q = self._model(dt)
         mix = self._mix
-        mix.w = mix.w * self.config.survival_probability**dt
+        mix.w = mix.w * cfg.survival_probability**dt
         mix.m = mix.m @ Ft
         mix.P = F @ mix.P @ Ft + Q
+        if cfg.maneuver_weight > 0.0:
+            src = np.flatnonzero(mix.w > 0.3)
+            if src.size:
+                m = mix.m[src].copy()
+                m[:, 1::2] = 0.0
+                P = mix.P[src].copy()
+                P[:, 1::2, :] = 0.0
+                P[:, :, 1::2] = 0.0
+                P[:, 1, 1] = P[:, 3, 3] = cfg.maneuver_velocity_std**2
+                w = mix.w[src] * cfg.maneuver_weight
+                mix.w[src] -= w
+                self._mix = _Mixture.concat((mix, _Mixture(w, m, P, mix.label[src].copy())))
 
     def _protected(self, mix: _Mixture) -> npt.NDArray[np.bool_] | None:
         """Components of confirmed labels, or None when no label is confirmed yet."""
@@ -451,13 +502,18 @@ class GmPhdTracker(Tracker):
         return cfg.clutter_rate / area
 
     def _update(
-        self, scan: SensorScan, pd_frame: FloatArray | None = None, kappa: float | None = None
+        self,
+        scan: SensorScan,
+        frame: tuple[FloatArray, FloatArray, FloatArray] | None = None,
     ) -> _Mixture:
         """Correct the mixture with one scan; return the births it seeds.
 
-        With ``pd_frame`` (per component) and ``kappa`` given, ``scan`` holds a frame's fused
-        measurements and every component takes part with its own detection probability.
+        With ``frame = (detect (J, K), miss (J,), kappa (K,))``, ``scan`` holds a frame's fused
+        measurements: ``detect[j, k]`` is the probability that exactly the sensors behind fused
+        measurement ``k`` detect component ``j``, ``miss[j]`` that no sensor does, and
+        ``kappa[k]`` the clutter intensity of measurement ``k``.
         """
+        pd_frame = None if frame is None else frame[1]
         cfg = self.config
         mix = self._mix
         z, R = scan.positions, scan.cov
@@ -481,7 +537,7 @@ class GmPhdTracker(Tracker):
         act = mix.take(active)
         rest = mix.take(~active)
         if pd_frame is not None:
-            pd = pd_frame
+            pd = 1.0 - pd_frame  # frame[1] is the probability that no sensor detects
         else:
             pd_sensor = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
             pd = np.where(visible[active], pd_sensor, pd_out)
@@ -501,10 +557,13 @@ class GmPhdTracker(Tracker):
             d2 = (s11 * n0 * n0 - 2.0 * s01 * n0 * n1 + s00 * n1 * n1) / det
             gated = d2 < cfg.gate
             q = np.exp(-0.5 * d2) / (_TWO_PI * np.sqrt(det))
-            num = np.where(gated, (pd * act.w)[:, None] * q, 0.0)  # (Ja, k)
+            if frame is None:
+                num = np.where(gated, (pd * act.w)[:, None] * q, 0.0)  # (Ja, k)
+                kappa: FloatArray | float = self._clutter_intensity(scan)
+            else:
+                num = np.where(gated, act.w[:, None] * frame[0] * q, 0.0)
+                kappa = frame[2]
             total = num.sum(axis=0)
-            if kappa is None:
-                kappa = self._clutter_intensity(scan)
             wdet = num / (kappa + total)
             explained = total / (kappa + total)
             # A measurement in the gate of a confirmed track seeds no birth, however light the
@@ -552,27 +611,39 @@ class GmPhdTracker(Tracker):
         return self._births_from(scan, explained, claimed)
 
     def _frame_update(self, t: float, scans: Sequence[SensorScan]) -> _Mixture:
-        """One GM-PHD update with the fused measurements of a frame (``fusion = "frame"``)."""
+        """One GM-PHD update with the fused measurements of a frame (``fusion = "frame"``).
+
+        Multi-sensor likelihood of a fused measurement ``k`` made of the estimates of the
+        sensor set :math:`C_k`, for a component at :math:`x`:
+
+        .. math::
+
+            \\prod_{s \\in C_k} p_{D,s}(x) \\prod_{s \\notin C_k} (1 - p_{D,s}(x))
+            \\; \\mathcal N(z_k; Hx, S)
+
+        so a ghost that one sensor reports while others that see the spot stay silent gets
+        little weight, and a person seen by several sensors much.
+        """
         cfg = self.config
         z = np.concatenate([s.positions for s in scans])
         R = np.concatenate([s.cov for s in scans]) + cfg.extent_std**2 * np.eye(2)
         owner = np.repeat(np.arange(len(scans)), [s.positions.shape[0] for s in scans])
         mix = self._mix
-        pd = np.zeros(mix.w.size)
+        n_s = len(scans)
+        pd_js = np.zeros((mix.w.size, n_s))
         if mix.w.size:
             xy = mix.m[:, ::2]
-            miss = np.ones(mix.w.size)
             heavy = mix.w > 0.5
             near = np.linalg.norm(xy[heavy, None, :] - z[None, :, :], axis=2) < cfg.cluster_distance
             for i, scan in enumerate(scans):
-                vis = in_field_of_view(scan, xy)
+                vis = in_field_of_view(scan, xy, cfg.fov_margin)
                 if not vis.any():
                     continue
                 pd_s = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
                 pd_j = np.where(vis, pd_s, 0.0)
                 if cfg.occluded_factor < 1.0 and mix.w.size > 1:
                     pd_j = pd_j * np.where(self._occluded(scan, mix), cfg.occluded_factor, 1.0)
-                miss *= 1.0 - pd_j
+                pd_js[:, i] = pd_j
                 if cfg.adapt_detection:
                     seen = vis[heavy]
                     if seen.any():
@@ -584,7 +655,6 @@ class GmPhdTracker(Tracker):
                                 cfg.max_detection_probability,
                             )
                         )
-            pd = 1.0 - miss
         anchors = anchor_cov = None
         if mix.w.size:
             # One predicted position per established label: its heaviest component.
@@ -595,13 +665,23 @@ class GmPhdTracker(Tracker):
                 top = order[first]
                 anchors = mix.m[top][:, ::2]
                 anchor_cov = mix.P[top][:, ::2, ::2]
-        zf, Rf = fuse_estimates(
+        zf, Rf, group = fuse_estimates(
             z, R, owner, cfg.cluster_distance, cfg.fused_noise_floor, anchors, anchor_cov
         )
+        cells = np.zeros((zf.shape[0], n_s))
+        cells[group, owner] = 1.0
+        # A sensor that reported a person it should not see (edge of its view) still counts.
+        eps = 1e-6
+        log_pd = np.log(np.maximum(pd_js, 1e-3))
+        log_miss = np.log(np.maximum(1.0 - pd_js, eps))
+        detect = np.exp(log_pd @ cells.T + log_miss @ (1.0 - cells).T)  # (J, K)
+        miss = np.exp(log_miss.sum(axis=1))
+        # Each sensor's false estimates spread over its own view: the intensities add up; a
+        # fused measurement of several sensors is clutter only if their false alarms coincide.
+        kappa0 = sum(self._clutter_intensity(scan) for scan in scans)
+        kappa = kappa0 * cfg.clutter_coincidence ** (cells.sum(axis=1) - 1.0)
         fused = SensorScan(sensor="*", t=t, positions=zf, cov=Rf, origin=np.zeros(2))
-        # Each sensor's false estimates spread over its own view: the intensities add up.
-        kappa = sum(self._clutter_intensity(scan) for scan in scans)
-        return self._update(fused, pd_frame=pd, kappa=kappa)
+        return self._update(fused, frame=(detect, miss, kappa))
 
     def _occluded(self, scan: SensorScan, mix: _Mixture) -> npt.NDArray[np.bool_]:
         """Components shadowed, for ``scan``'s sensor, by a heavier component of another label
@@ -816,7 +896,16 @@ class GmPhdTracker(Tracker):
         self._confirmed_arr = np.sort(np.fromiter(confirmed, dtype=np.int64, count=len(confirmed)))
 
         is_confirmed = np.fromiter((lb in confirmed for lb in labels.tolist()), bool)
-        report = is_confirmed & (label_w >= cfg.keep_threshold)
+        strong_now = label_w >= cfg.keep_threshold
+        seen = {lb: t for lb, ok in zip(labels.tolist(), strong_now.tolist(), strict=True) if ok}
+        self._last_strong = {
+            lb: seen.get(lb, self._last_strong.get(lb, -math.inf)) for lb in labels.tolist()
+        }
+        # Coast: a confirmed track stays reported (predicted) through short gaps in detection.
+        coasting = np.fromiter(
+            (t - self._last_strong[lb] <= cfg.coast_time for lb in labels.tolist()), bool
+        )
+        report = is_confirmed & (strong_now | coasting)
         tracks = tuple(
             TrackEstimate(id=int(lb), x=mm[0], vx=mm[1], y=mm[2], vy=mm[3], cov=PP, w=ww)
             for lb, mm, PP, ww in zip(

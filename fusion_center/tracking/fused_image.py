@@ -55,6 +55,11 @@ class FusedImageConfig:
         15.9 /m²; a steadily seen target reaches about ``1 / (1 - λ)`` times that).
     relative_threshold : float
         Peaks below this fraction of the image maximum are ignored as well.
+    extent_std : float
+        Standard deviation (m) of a person's scattering centres about the body centre, added
+        to each estimate's covariance (the node's covariance covers ranging only).
+    peak_separation : float
+        Two peaks closer than this (m) are one person: the local-maximum window half-width.
     accel_psd : float
         Acceleration noise PSD of the track manager's constant-velocity Kalman filter, m²/s³.
     measurement_std : float
@@ -71,8 +76,10 @@ class FusedImageConfig:
     resolution: float = 0.05
     forgetting: float = 0.8
     window_sigmas: float = 3.0
-    threshold: float = 20.0
+    threshold: float = 2.0
     relative_threshold: float = 0.2
+    extent_std: float = 0.2
+    peak_separation: float = 0.4
     accel_psd: float = 0.5
     measurement_std: float = 0.1
     gate: float = 1.0
@@ -181,7 +188,8 @@ class FusedImageTracker(Tracker):
         img = self._image
         assert img is not None
         level = max(cfg.threshold, cfg.relative_threshold * float(img.max()))
-        is_peak = (img == maximum_filter(img, size=3, mode="constant")) & (img >= level)
+        size = 2 * max(1, round(cfg.peak_separation / cfg.resolution)) + 1
+        is_peak = (img == maximum_filter(img, size=size, mode="constant")) & (img >= level)
         i, j = np.nonzero(is_peak)
         if i.size == 0:
             return np.zeros((0, 2))
@@ -260,7 +268,7 @@ class FusedImageTracker(Tracker):
             if self._image is None:
                 return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
         p, cov = self.closest_estimates(scans)
-        self._accumulate(p, cov)
+        self._accumulate(p, cov + self.config.extent_std**2 * np.eye(2))
         peaks = self._peaks()
         dt = 0.0 if self._t is None else t - self._t
         self._t = t

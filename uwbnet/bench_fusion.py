@@ -182,7 +182,17 @@ def _crossing_scans(seed: int, duration: float) -> tuple[np.ndarray, np.ndarray,
 
 
 def _ours(t: np.ndarray, truth: np.ndarray, scans: list[SensorScan]) -> dict[str, float | int]:
-    tracker = GmPhdTracker(GmPhdConfig(clutter_rate=5.0, surveillance_area=100.0))
+    # The scenario's own parameters, as Stone Soup gets them: known p_D, clutter, point
+    # targets (no body extent).
+    tracker = GmPhdTracker(
+        GmPhdConfig(
+            clutter_rate=5.0,
+            surveillance_area=100.0,
+            detection_probability=0.9,
+            adapt_detection=False,
+            extent_std=0.0,
+        )
+    )
     outputs = []
     t0 = time.perf_counter()
     for tk, scan in zip(t.tolist(), scans, strict=True):

@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import multiprocessing
 import threading
 import time
 from typing import Any
@@ -90,6 +91,44 @@ def _truth_loop(
         pub.undeclare()
 
 
+def _run_nodes(
+    scenario: Scenario,
+    seed: int,
+    net: str,
+    hub: str,
+    start: float,
+    publish_ir: bool,
+    ready: Any,
+    stop: Any,
+) -> None:
+    """The simulated nodes' process: one zenoh session and node agent per node, and the
+    simulator's truth publisher. Runs until ``stop`` is set (or Ctrl-C)."""
+    network = SimNetwork(scenario, seed)
+    truth_stop = threading.Event()
+    try:
+        with contextlib.ExitStack() as stack:
+            sim_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+            truth_thread = threading.Thread(
+                target=_truth_loop, args=(sim_session, network, net, start, truth_stop)
+            )
+            truth_thread.start()
+            stack.callback(truth_thread.join, 2.0)
+            stack.callback(truth_stop.set)
+            for node in sorted(network.node_infos()):
+                session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+                driver = stack.enter_context(SimulatedDriver(network, node, start=start))
+                agent = NodeAgent(
+                    session, driver, AgentConfig(node=node, net=net, publish_ir=publish_ir)
+                )
+                agent.start()
+                stack.callback(agent.stop)
+            ready.set()
+            while not stop.wait(0.2):
+                pass
+    except KeyboardInterrupt:
+        pass  # the parent stops us through ``stop``; Ctrl-C reaches both processes
+
+
 def _table(
     out: TrackerOutput | None,
     health: dict[str, NodeHealth],
@@ -112,8 +151,8 @@ def _table(
             )
     s = score.as_dict()
     tracks.caption = (
-        f"{len(out.tracks) if out else 0} tracks, {len(truth)} people  |  "
-        f"mean OSPA {s['ospa_mean']:.2f} m, count correct {100 * s['card_correct_fraction']:.0f} %"
+        f"{len(out.tracks) if out else 0} tracks / {len(truth)} people | "
+        f"OSPA {s['ospa_mean']:.2f} m | count ok {100 * s['card_correct_fraction']:.0f} %"
     )
     nodes = Table(title="nodes")
     for col in ("node", "alive", "acquired", "late", "drops", "det/s", "latency ms", "cpu %"):
@@ -143,7 +182,6 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
     # that every node has joined before the first frame.
     start = time.time() + 0.5
     score = DemoScore()
-    stop = threading.Event()
     summary: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
         fusion_session = stack.enter_context(zenoh.open(session_config(listen=[hub])))
@@ -158,29 +196,32 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             recorder = NetworkRecorder(rec_session, config.net, config.record)
             recorder.start()
             stack.callback(recorder.stop)
-        sim_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
-        truth_thread = threading.Thread(
-            target=_truth_loop, args=(sim_session, network, config.net, start, stop), daemon=True
+        # The nodes run in their own process (spawned: zenoh sessions do not survive fork),
+        # as on separate hosts, and so that the fusion center has a core of its own.
+        ctx = multiprocessing.get_context("spawn")
+        ready, stop_nodes = ctx.Event(), ctx.Event()
+        nodes_proc = ctx.Process(
+            target=_run_nodes,
+            args=(
+                config.scenario,
+                config.seed,
+                config.net,
+                hub,
+                start,
+                config.publish_ir or bool(recorder),
+                ready,
+                stop_nodes,
+            ),
+            name="uwbnet-nodes",
         )
-        truth_thread.start()
-        stack.callback(truth_thread.join, 2.0)
-        stack.callback(stop.set)
-        agents = []
-        for node in sorted(network.node_infos()):
-            session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
-            driver = stack.enter_context(SimulatedDriver(network, node, start=start))
-            agent = NodeAgent(
-                session,
-                driver,
-                AgentConfig(
-                    node=node, net=config.net, publish_ir=config.publish_ir or bool(recorder)
-                ),
-            )
-            agent.start()
-            stack.callback(agent.stop)
-            agents.append(agent)
+        nodes_proc.start()
+        stack.callback(nodes_proc.join, 10.0)
+        stack.callback(stop_nodes.set)
+        n_nodes = len(network.node_infos())
+        if not ready.wait(30.0):
+            raise RuntimeError("the simulated nodes did not start within 30 s")
         console.print(
-            f"uwbnet demo: scenario {config.scenario.name}, {len(agents)} nodes, fusion "
+            f"uwbnet demo: scenario {config.scenario.name}, {n_nodes} nodes, fusion "
             f"{config.method}, zenoh peers on {hub}"
             + (f", recording {config.record}" if config.record else "")
         )
@@ -220,12 +261,12 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
         summary = {
             "scenario": config.scenario.name,
             "duration_s": round(time.time() - start, 2),
-            "nodes": len(agents),
+            "nodes": n_nodes,
             "fusion_updates": fusion.core.counters.updates,
             "late_detections": fusion.core.counters.late,
             "decode_errors": fusion.decode_errors,
-            "acquired": sum(a.counters["acquired"] for a in agents),
-            "late_slots": sum(a.counters["late_slots"] for a in agents),
+            "acquired": sum(h.last_status.acquired for h in health.values() if h.last_status),
+            "late_slots": sum(h.last_status.late_slots for h in health.values() if h.last_status),
             "final_tracks": len(out.tracks) if out else 0,
             **score.as_dict(),
         }

@@ -158,6 +158,7 @@ class NodeAgent:
         last_status = time.monotonic()
         cpu_mark = (time.thread_time(), time.monotonic())
         last_query = 0.0
+        last_frame: int | None = None
         while not self._stop.is_set():
             self._take_schedule()
             if self._schedule is None or self.tx is None:
@@ -171,6 +172,10 @@ class NodeAgent:
             if slot is None:  # not (yet) in the schedule
                 self._stop.wait(0.05)
                 continue
+            if last_frame is not None and slot.frame > last_frame + 1:
+                # The worker fell behind: these frames' slots passed without an acquisition.
+                self.counters["dropped"] += slot.frame - last_frame - 1
+            last_frame = slot.frame
             wait = slot.t - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 break

@@ -98,6 +98,10 @@ class GmPhdConfig:
         sensors in a row may miss; a person who left is below it after a frame or two).
     confirm_steps : int
         Steps with summed weight above ``extract_threshold`` before a label is reported.
+    reid_time, reid_radius, reid_speed : float
+        A new track confirmed within ``reid_time`` (s) of a confirmed track's loss and within
+        ``reid_radius + reid_speed * dt`` (m, m/s) of where it was last reported continues its
+        id (see :meth:`GmPhdTracker._reidentify`).
     coast_time : float
         A confirmed track whose weight fell below ``keep_threshold`` is still reported, at its
         predicted state, for this long (s): people near walls or shadowed may go unseen by
@@ -112,6 +116,11 @@ class GmPhdConfig:
         every miss cost a confirmed track most of its weight.
     adapt_rate : float
         Weight of one scan in the running ``p_D`` estimate.
+    detection_range_bins : tuple of float
+        Distance bin edges (m) of the learned ``p_D`` per sensor in frame fusion: the echo of a
+        person weakens as :math:`1/(d_1 d_2)`, so a sensor detects near people more reliably
+        than far ones, and a track in a far corner should not lose weight for each scan a
+        sensor that barely reaches it stays silent.
     min_detection_probability, max_detection_probability : float
         Bounds of a learned ``p_D``.
     occlusion_radius : float
@@ -168,8 +177,12 @@ class GmPhdConfig:
     keep_threshold: float = 0.4
     confirm_steps: int = 3
     coast_time: float = 0.25
+    reid_time: float = 2.0
+    reid_radius: float = 0.5
+    reid_speed: float = 1.0
     adapt_detection: bool = True
     adapt_rate: float = 0.02
+    detection_range_bins: tuple[float, ...] = (3.0, 5.0, 7.0, 9.0, 12.0)
     min_detection_probability: float = 0.2
     max_detection_probability: float = 0.95
     fusion: str = "frame"
@@ -436,8 +449,12 @@ class GmPhdTracker(Tracker):
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
         self._dup_count: dict[tuple[int, int], int] = {}
         self._last_strong: dict[int, float] = {}
+        self._last_report: dict[int, tuple[float, float, float]] = {}
+        self._lost: dict[int, tuple[float, float, float]] = {}
         #: Learned detection probability per sensor id (see ``adapt_detection``).
         self.detection_probabilities: dict[str, float] = {}
+        #: Learned detection probability per sensor and distance bin (frame fusion).
+        self.detection_profiles: dict[str, FloatArray] = {}
 
     # -- recursion ----------------------------------------------------------------------
 
@@ -635,25 +652,34 @@ class GmPhdTracker(Tracker):
             xy = mix.m[:, ::2]
             heavy = mix.w > 0.5
             near = np.linalg.norm(xy[heavy, None, :] - z[None, :, :], axis=2) < cfg.cluster_distance
+            edges = np.asarray(cfg.detection_range_bins)
             for i, scan in enumerate(scans):
                 vis = in_field_of_view(scan, xy, cfg.fov_margin)
                 if not vis.any():
                     continue
-                pd_s = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
-                pd_j = np.where(vis, pd_s, 0.0)
+                profile = self.detection_profiles.get(scan.sensor)
+                if profile is None:
+                    profile = np.full(edges.size + 1, cfg.detection_probability)
+                    self.detection_profiles[scan.sensor] = profile
+                rbin = np.searchsorted(edges, np.linalg.norm(xy - scan.origin, axis=1))
+                pd_j = np.where(vis, profile[rbin], 0.0)
                 if cfg.occluded_factor < 1.0 and mix.w.size > 1:
                     pd_j = pd_j * np.where(self._occluded(scan, mix), cfg.occluded_factor, 1.0)
                 pd_js[:, i] = pd_j
                 if cfg.adapt_detection:
                     seen = vis[heavy]
                     if seen.any():
-                        hit = near[:, owner == i].any(axis=1)[seen].mean()
-                        pd_s += cfg.adapt_rate * (hit - pd_s)
-                        self.detection_probabilities[scan.sensor] = float(
-                            min(
-                                max(pd_s, cfg.min_detection_probability),
-                                cfg.max_detection_probability,
-                            )
+                        hit = near[:, owner == i].any(axis=1)[seen]
+                        hb = rbin[heavy][seen]
+                        count = np.bincount(hb, minlength=profile.size)
+                        rate = np.bincount(hb, weights=hit, minlength=profile.size)
+                        upd = count > 0
+                        profile[upd] += cfg.adapt_rate * (rate[upd] / count[upd] - profile[upd])
+                        np.clip(
+                            profile,
+                            cfg.min_detection_probability,
+                            cfg.max_detection_probability,
+                            out=profile,
                         )
         anchors = anchor_cov = None
         if mix.w.size:
@@ -776,7 +802,9 @@ class GmPhdTracker(Tracker):
             )
             self._births = _Mixture.empty()
         births = []
-        if self.config.fusion == "frame" and scans:
+        # With one sensor in the frame, the frame update is the plain GM-PHD update.
+        frame_mode = self.config.fusion == "frame" and len(scans) > 1
+        if frame_mode:
             tf = max(s.t for s in scans)
             if tf > self._t:
                 self._predict(tf - self._t)
@@ -784,7 +812,7 @@ class GmPhdTracker(Tracker):
             b = self._frame_update(tf, scans)
             if b.w.size:
                 births.append(b)
-        for scan in sorted(scans, key=lambda s: s.t) if self.config.fusion != "frame" else ():
+        for scan in () if frame_mode else sorted(scans, key=lambda s: s.t):
             if scan.t > self._t:
                 self._predict(scan.t - self._t)
                 self._t = scan.t
@@ -814,6 +842,25 @@ class GmPhdTracker(Tracker):
             self._mix = mix.take(np.argsort(-mix.w)[: self.config.max_components])
         self._fold_duplicate_labels()
         return self._extract(t)
+
+    def _reidentify(self, t: float, m: FloatArray) -> int | None:
+        """The label of a recently lost track that a new track at state ``m`` continues.
+
+        Track continuity beyond the chapter: a person who went unseen for a moment (a
+        corner no sensor covers well, shadowed by another) is re-born as a new label; if it
+        appears within ``reid_radius + reid_speed * dt`` of where a confirmed track was last
+        reported ``dt <= reid_time`` ago, it gets that track's id back (nearest wins).
+        """
+        cfg = self.config
+        best, best_d = None, math.inf
+        for lb, (tl, x, y) in self._lost.items():
+            dt = t - tl
+            d = math.hypot(m[0] - x, m[2] - y)
+            if dt <= cfg.reid_time and d <= cfg.reid_radius + cfg.reid_speed * dt and d < best_d:
+                best, best_d = lb, d
+        if best is not None:
+            del self._lost[best]
+        return best
 
     def _fold_duplicate_labels(self) -> None:
         """Fold labels that follow one person into the oldest (see ``duplicate_steps``)."""
@@ -852,6 +899,8 @@ class GmPhdTracker(Tracker):
         cfg = self.config
         mix = self._mix
         if mix.w.size == 0:
+            self._lost.update(self._last_report)
+            self._last_report = {}
             self._hits.clear()
             self._confirmed.clear()
             self._confirmed_arr = np.zeros(0, dtype=np.int64)
@@ -891,7 +940,15 @@ class GmPhdTracker(Tracker):
             hits[label] = self._hits.get(label, 0) + int(is_strong)
         self._hits = hits
         confirmed = {lb for lb in self._confirmed if lb in hits}
-        confirmed.update(lb for lb, h in hits.items() if h >= cfg.confirm_steps)
+        newly = [lb for lb, h in hits.items() if h >= cfg.confirm_steps and lb not in confirmed]
+        for lb in newly:
+            old = self._reidentify(t, mix.m[heads[labels == lb][0]])
+            if old is not None:
+                mix.label[mix.label == lb] = old
+                labels[labels == lb] = old
+                hits[old] = hits.pop(lb)
+                lb = old
+            confirmed.add(lb)
         self._confirmed = confirmed
         self._confirmed_arr = np.sort(np.fromiter(confirmed, dtype=np.int64, count=len(confirmed)))
 
@@ -906,6 +963,15 @@ class GmPhdTracker(Tracker):
             (t - self._last_strong[lb] <= cfg.coast_time for lb in labels.tolist()), bool
         )
         report = is_confirmed & (strong_now | coasting)
+        reported = labels[report].tolist()
+        for lb in set(self._last_report) - set(reported):
+            self._lost[lb] = self._last_report[lb]  # it was reported last step, not now
+        self._last_report = {
+            lb: (t, mm[0], mm[2])
+            for lb, mm in zip(reported, mix.m[heads[report]].tolist(), strict=True)
+        }
+        for lb in [lb for lb, (tl, _, _) in self._lost.items() if t - tl > cfg.reid_time]:
+            del self._lost[lb]
         tracks = tuple(
             TrackEstimate(id=int(lb), x=mm[0], vx=mm[1], y=mm[2], vy=mm[3], cov=PP, w=ww)
             for lb, mm, PP, ww in zip(

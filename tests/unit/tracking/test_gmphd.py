@@ -140,3 +140,19 @@ def test_scan_validates_shapes() -> None:
             cov=np.zeros((1, 2, 2)),
             origin=np.zeros(2),
         )
+
+
+def test_person_unseen_for_a_moment_keeps_its_id(rng: np.random.Generator) -> None:
+    """A walker no sensor detects for 0.6 s (a badly covered corner) is re-identified."""
+    times, X = crossing_truth(6.0)
+    alive = np.ones(X.shape[:2], dtype=bool)
+    gap = (times >= 3.0) & (times < 3.6)
+    alive[gap, 2] = False
+    _, outputs = run_tracker(rng, X, sensors_around(10.0, 8.0), alive=alive)
+    k_before, k_after = int(2.9 / FRAME), int(5.5 / FRAME)
+    before = nearest_id(outputs[k_before], X[k_before, 2])
+    after = nearest_id(outputs[k_after], X[k_after, 2])
+    assert before is not None
+    assert after == before
+    # ... and a disappearing person is still dropped: no track where it was, 1 s later.
+    assert all(nearest_id(o, X[k_before, 2], radius=0.3) is None for o in outputs[-5:])

@@ -194,7 +194,7 @@ class GmPhdConfig:
     extent_std: float = 0.2
     duplicate_distance: float = 0.3
     duplicate_velocity: float = 0.5
-    duplicate_steps: int = 50
+    duplicate_steps: int = 25
     occlusion_radius: float = 0.35
     occluded_factor: float = 0.2
 
@@ -752,6 +752,32 @@ class GmPhdTracker(Tracker):
             min(max(pd, cfg.min_detection_probability), cfg.max_detection_probability)
         )
 
+    def _merge_births(self, births: _Mixture) -> _Mixture:
+        """One birth per person: births of one step closer than ``cluster_distance`` (a
+        person's body seen as separate estimates by different sensors) are merged, weights
+        summed (capped at 1) and moments matched; the merged birth keeps the first label."""
+        n = births.w.size
+        if n < 2:
+            return births
+        xy = births.m[:, ::2]
+        tree = linkage(xy, method="complete")
+        group = fcluster(tree, t=self.config.cluster_distance, criterion="distance") - 1
+        k = int(group.max()) + 1
+        if k == n:
+            return births
+        w = np.zeros(k)
+        np.add.at(w, group, births.w)
+        m = np.zeros((k, 4))
+        np.add.at(m, group, births.w[:, None] * births.m)
+        m /= w[:, None]
+        d = births.m - m[group]
+        P = np.zeros((k, 4, 4))
+        np.add.at(P, group, births.w[:, None, None] * (births.P + d[:, :, None] * d[:, None, :]))
+        P /= w[:, None, None]
+        first = np.full(k, n)
+        np.minimum.at(first, group, np.arange(n))
+        return _Mixture(np.minimum(w, 1.0), m, P, births.label[first])
+
     def _births_from(
         self, scan: SensorScan, explained: FloatArray, claimed: npt.NDArray[np.bool_]
     ) -> _Mixture:
@@ -823,7 +849,9 @@ class GmPhdTracker(Tracker):
             self._predict(t - self._t)
             self._t = t
         if births:
-            self._births = births[0] if len(births) == 1 else _Mixture.concat(births)
+            self._births = self._merge_births(
+                births[0] if len(births) == 1 else _Mixture.concat(births)
+            )
         if len(scans) > 1 and self._mix.w.size > 1:
             # Components of one target seen by different sensors were merged per sensor only.
             mix = self._mix
@@ -874,7 +902,7 @@ class GmPhdTracker(Tracker):
         first = np.ones(lab.size, dtype=bool)
         first[1:] = lab[1:] != lab[:-1]
         heads = order[first]
-        heads = heads[mix.w[heads] > 0.2]
+        heads = heads[mix.w[heads] > 0.05]
         labels = mix.label[heads]
         if labels.size < 2:
             self._dup_count.clear()
@@ -883,7 +911,9 @@ class GmPhdTracker(Tracker):
         dp = np.linalg.norm(m[:, None, ::2] - m[None, :, ::2], axis=2)
         dv = np.linalg.norm(m[:, None, 1::2] - m[None, :, 1::2], axis=2)
         close = np.triu((dp < cfg.duplicate_distance) & (dv < cfg.duplicate_velocity), 1)
-        counts: dict[tuple[int, int], int] = {}
+        # A pair that is apart for a step loses one count rather than all: the weights of
+        # labels sharing one person fluctuate, and one step apart is no proof of two people.
+        counts = {k: v - 1 for k, v in self._dup_count.items() if v > 1}
         for i, j in zip(*np.nonzero(close), strict=True):
             a, b = sorted((int(labels[i]), int(labels[j])))
             counts[(a, b)] = self._dup_count.get((a, b), 0) + 1

@@ -191,6 +191,7 @@ def _ours(t: np.ndarray, truth: np.ndarray, scans: list[SensorScan]) -> dict[str
             detection_probability=0.9,
             adapt_detection=False,
             extent_std=0.0,
+            maneuver_weight=0.0,  # the walkers move at constant velocity, as Stone Soup's model
         )
     )
     outputs = []

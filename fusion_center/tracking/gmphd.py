@@ -273,26 +273,38 @@ def merge_components(
     if n <= 1:
         return w, m, P, label
     diff = m[None, :, :] - m[:, None, :]  # diff[l, i] = m_i - m_l, (J, J, 4)
-    sol = np.linalg.solve(P, diff.transpose(0, 2, 1))  # P_l^{-1} (m_i - m_l), (J, 4, J)
-    close = np.einsum("lai,lia->li", sol, diff) <= threshold
+    # The Mahalanobis distance of the position alone (marginal 2x2 block, closed form) is a
+    # lower bound of the full one: only pairs within the threshold there need the 4x4 solve.
+    a, b, c = P[:, 0, 0], P[:, 0, 2], P[:, 2, 2]
+    dx, dy = diff[..., 0], diff[..., 2]
+    d2_pos = (c[:, None] * dx * dx - 2.0 * b[:, None] * dx * dy + a[:, None] * dy * dy) / (
+        a * c - b * b
+    )[:, None]
+    close = d2_pos <= threshold
+    np.fill_diagonal(close, False)
+    rows = np.flatnonzero(close.any(axis=1))
+    if rows.size:
+        dr = diff[rows]
+        sol = np.linalg.solve(P[rows], dr.transpose(0, 2, 1))  # P_l^{-1} (m_i - m_l)
+        close[rows] &= np.einsum("lai,lia->li", sol, dr) <= threshold
     if protected is not None:
         prot = protected[order]
         close &= (label[:, None] == label[None, :]) | ~(prot[:, None] & prot[None, :])
-    remaining = np.ones(n, dtype=bool)
+    # Components close to none are clusters of their own: only the others need the greedy loop.
+    lonely = ~(close.any(axis=0) | close.any(axis=1))
     assign = np.empty(n, dtype=np.intp)
-    leaders = []
-    lead = 0
-    cluster = 0
-    while True:
+    leaders = np.flatnonzero(lonely).tolist()
+    assign[lonely] = np.arange(len(leaders))
+    cluster = len(leaders)
+    remaining = ~lonely
+    while remaining.any():
+        lead = int(remaining.argmax())  # heaviest remaining: the arrays are weight-sorted
         members = close[lead] & remaining
         members[lead] = True
         assign[members] = cluster
         remaining &= ~members
         leaders.append(lead)
         cluster += 1
-        if not remaining.any():
-            break
-        lead = int(remaining.argmax())  # heaviest remaining: the arrays are weight-sorted
     if cluster == n:
         return w, m, P, label
     grouped = np.argsort(assign, kind="stable")
@@ -311,7 +323,8 @@ def merge_components(
         if idx.size:
             clusters, first = np.unique(assign[idx], return_index=True)
             label_new[clusters] = label[idx[first]]
-    return w_new, m_new, P_new, label_new
+    by_weight = np.argsort(-w_new, kind="stable")
+    return w_new[by_weight], m_new[by_weight], P_new[by_weight], label_new[by_weight]
 
 
 def fuse_estimates(
@@ -760,9 +773,15 @@ class GmPhdTracker(Tracker):
         if n < 2:
             return births
         xy = births.m[:, ::2]
-        tree = linkage(xy, method="complete")
-        group = fcluster(tree, t=self.config.cluster_distance, criterion="distance") - 1
-        k = int(group.max()) + 1
+        # Leader clustering (a few births per step): each birth joins the first earlier
+        # leader within ``cluster_distance``, else leads a group of its own.
+        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) <= self.config.cluster_distance
+        group = np.full(n, -1, dtype=np.int64)
+        k = 0
+        for i in range(n):
+            if group[i] < 0:
+                group[(group < 0) & near[i]] = k
+                k += 1
         if k == n:
             return births
         w = np.zeros(k)

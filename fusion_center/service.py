@@ -97,6 +97,7 @@ class FusionService:
         self._schedule_bytes = b""
         self._seq = {"tracks": 0, "schedule": 0}
         self._want_info: set[str] = set()
+        self._asked: dict[str, float] = {}
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -219,19 +220,30 @@ class FusionService:
         self._reschedule()
 
     def _fetch_infos(self) -> None:
-        """Query the ``node_info`` queryables of nodes whose description is missing."""
+        """Ask the ``node_info`` queryables of nodes whose description is missing.
+
+        Never blocks the worker: replies arrive through a callback into the inbox, like any
+        ``info`` sample. A node is asked at most once per second.
+        """
         if not self._want_info:
             return
+        now = time.monotonic()
         wanted, self._want_info = self._want_info, set()
+        put = self._inbox.put
         for node in sorted(wanted):
+            if node in self.core.nodes or now - self._asked.get(node, -math.inf) < 1.0:
+                continue
+            self._asked[node] = now
+
+            def on_reply(reply: zenoh.Reply) -> None:
+                if reply.ok is not None:
+                    put(("info", str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+
             try:
-                replies = self.session.get(
-                    keys.node_key(self.config.net, node, "info"), timeout=1.0
+                self.session.get(
+                    keys.node_key(self.config.net, node, "info"), on_reply, timeout=1.0
                 )
-                for reply in replies:
-                    if reply.ok is not None:
-                        self._add_node(NodeInfo.from_wire(reply.ok.payload.to_bytes()))
-            except (zenoh.ZError, ProtocolError) as exc:
+            except zenoh.ZError as exc:
                 log.warning("node_info of %s: %s", node, exc)
 
     def _add_node(self, info: NodeInfo) -> None:

@@ -169,8 +169,14 @@ class NodeAgent:
                     self._stop.wait(0.05)
                 continue
             slot = next_slot(self._schedule, self.tx, self.clock())
-            if slot is None:  # not (yet) in the schedule
-                self._stop.wait(0.05)
+            if slot is None:
+                # Not (yet) in the schedule: the update that adds us may have been published
+                # before our subscriber was matched, so ask the schedule queryable again.
+                if time.monotonic() - last_query > 1.0:
+                    last_query = time.monotonic()
+                    self._query_schedule()
+                else:
+                    self._stop.wait(0.05)
                 continue
             if last_frame is not None and slot.frame > last_frame + 1:
                 # The worker fell behind: these frames' slots passed without an acquisition.

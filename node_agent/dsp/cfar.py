@@ -124,6 +124,21 @@ class GaussianCfarDetector:
         amplitudes : tuple of ndarray, float64, shape (k_i,)
             Per receiver, the peak deviation :math:`|y_k - \\mu_k|` (input units).
         """
+        r, amp, rows = self.detect(y)
+        bounds = np.searchsorted(rows, np.arange(y.shape[0] + 1)).tolist()
+        spans = list(itertools.pairwise(bounds))
+        return tuple(r[a:b] for a, b in spans), tuple(amp[a:b] for a, b in spans)
+
+    def detect(self, y: npt.NDArray) -> tuple[FloatArray, FloatArray, npt.NDArray[np.intp]]:
+        """:meth:`step` with the detections of all receivers in flat arrays.
+
+        Returns
+        -------
+        ranges, amplitudes : ndarray, float64, shape (k,)
+            Detected bistatic ranges (m) and peak deviations, sorted by (receiver, range).
+        rows : ndarray, intp, shape (k,)
+            Receiver (row of ``y``) of each detection.
+        """
         n_rx = y.shape[0]
         if self._k2.shape[0] == 1 and n_rx > 1:
             self._k2 = np.repeat(self._k2, n_rx, axis=0)
@@ -131,9 +146,9 @@ class GaussianCfarDetector:
             s = np.abs(y).astype(np.float32, copy=False)
         else:
             s = y.astype(np.float32, copy=False)
-        empty = tuple(np.empty(0) for _ in range(n_rx))
+        empty = np.empty(0), np.empty(0), np.empty(0, dtype=np.intp)
         if s.shape[1] == 0:  # the searched window is empty (guard beyond the window)
-            return empty, empty
+            return empty
         if self._var is None:
             # initialise from a robust noise-floor estimate of this frame; an all-zero
             # frame (the background subtractor's first output) carries no information
@@ -141,7 +156,7 @@ class GaussianCfarDetector:
             d0 = s - mean
             var0 = np.median(d0 * d0, axis=1, keepdims=True) / _CHI2_1_MEDIAN
             if not np.any(var0 > 0):
-                return empty, empty
+                return empty
             # a silent receiver row (all zeros) gets the floor and stays silent
             var0 = np.maximum(var0, 1e-6 * float(np.max(var0)))
             self._var = np.repeat(var0, s.shape[1], axis=1).astype(np.float32)
@@ -186,23 +201,21 @@ class GaussianCfarDetector:
         var += limit
         np.maximum(var, self._floor, out=var)
         if idx.size == 0:
-            return empty, empty
+            return empty
 
         nb = d2.ravel()[flat_nb]  # (k, 2*half+1)
-        # a crossing is a peak when it is the maximum within one pulse width
-        is_peak = nb[:, self._half] >= nb.max(axis=1)
+        # a crossing is a peak when it is the maximum within one pulse width, and the
+        # first of equal maxima (a flat top gives one peak, not two a sample apart)
+        centre = nb[:, self._half]
+        is_peak = centre >= np.maximum.reduce(nb, 1)
+        is_peak &= centre > np.maximum.reduce(nb[:, : self._half], 1)
         rows, cols, nb = rows[is_peak], cols[is_peak], nb[is_peak].astype(np.float64)
-        # equal neighbours (plateau) would give two peaks a sample apart: keep the first
-        dup = np.zeros(rows.size, dtype=bool)
-        dup[1:] = ((cols[1:] - cols[:-1]) <= self._half) & (rows[1:] == rows[:-1])
-        if dup.any():
-            rows, cols, nb = rows[~dup], cols[~dup], nb[~dup]
         env = np.sqrt(nb[:, self._half - 1 : self._half + 2])
         a_m, amp, a_p = env[:, 0], env[:, 1], env[:, 2]
-        # parabola through the envelope around the peak: sub-sample delay
+        # parabola through the envelope around the peak: sub-sample delay. The centre is
+        # the neighbourhood's maximum, so den <= -|a_m - a_p| and |frac| <= 1/2; a flat
+        # top (den = 0, a_m = a_p) gives frac = 0
         den = a_m - 2.0 * amp + a_p
-        frac = np.where(den < 0, 0.5 * (a_m - a_p) / np.where(den < 0, den, -1.0), 0.0)
-        r = self._ranges[cols] + np.minimum(np.maximum(frac, -0.5), 0.5) * self._step
-        bounds = np.searchsorted(rows, np.arange(n_rx + 1)).tolist()
-        spans = list(itertools.pairwise(bounds))
-        return tuple(r[a:b] for a, b in spans), tuple(amp[a:b] for a, b in spans)
+        frac = (a_m - a_p) / np.minimum(den, -1e-300)
+        frac *= 0.5 * self._step
+        return self._ranges[cols] + frac, amp, rows

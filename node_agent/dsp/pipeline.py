@@ -10,11 +10,12 @@ import numpy.typing as npt
 from .association import RangePairAssociator, pairing_threshold
 from .background import ExponentialBackgroundSubtractor
 from .cfar import GaussianCfarDetector
-from .ellipse import intersect_ellipses, position_covariance
+from .ellipse import EllipseIntersector
 from .geometry import RadarParams, SensorGeometry
 from .range_phd import RangeGmPhdFilter
 
 FloatArray = npt.NDArray[np.float64]
+_FEATURES = np.array([0, 2, 3])  # estimate columns (rate variance, rate, amplitude)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -41,11 +42,22 @@ class NodeDspConfig:
         Standard deviation of an estimated range, m (PHD measurement noise, and the
         position covariance).
     range_offset : float
-        Added to every estimated range before the ellipse intersection, m. Echoes of a
-        person come from the body's front surface; about twice the body radius
-        (0.3-0.4 m) moves the intersections to body centres. 0 for point scatterers.
+        Added to every estimated range before the ellipse intersection, m. A person is
+        not a point: the echo comes from the side of the body facing the antennas, so
+        each leg of the bistatic path is shorter than to the body's centre by about the
+        body's radius :math:`\\rho`, and the range by about :math:`2 \\rho
+        \\cos(\\beta / 2) \\approx 2 \\rho` for the small bistatic angles :math:`\\beta`
+        of a bat sensor. A torso is about 0.25-0.3 m deep and 0.45 m wide, an effective
+        :math:`\\rho` of about 0.15 m: 0.3 m moves the intersections to body centres,
+        which the fusion centre tracks (on the foyer3 simulation the median distance of
+        positions to the truth falls from 0.21 m to 0.11 m). 0 for point scatterers.
     pairing_margin : float
         Margin added to the receiver baseline in the pairing threshold T_s, m.
+    pairing_rate_std : float
+        Allowed difference of one person's range rates at the two receivers, m/s
+        (see :class:`RangePairAssociator`).
+    pairing_log_amplitude_std : float
+        Allowed difference of one person's log echo amplitudes at the two receivers.
     fov_margin : float
         Angle added to half the beamwidth when keeping ellipse intersections, rad.
     rx_pair : tuple of int or None
@@ -81,8 +93,10 @@ class NodeDspConfig:
     min_range_guard: float = 0.5
     max_range: float | None = None
     range_std: float = 0.05
-    range_offset: float = 0.0
+    range_offset: float = 0.3
     pairing_margin: float = 0.15
+    pairing_rate_std: float = 0.3
+    pairing_log_amplitude_std: float = 0.7
     fov_margin: float = 0.35
     rx_pair: tuple[int, int] | None = None
     process_noise: float = 0.5
@@ -209,7 +223,16 @@ class NodeDsp:
         threshold = pairing_threshold(
             geometry.rx[i, :2], geometry.rx[j, :2], self.config.pairing_margin
         )
-        self._associator = RangePairAssociator(threshold)
+        self._associator = RangePairAssociator(
+            threshold, self.config.pairing_rate_std, self.config.pairing_log_amplitude_std
+        )
+        self._intersector = EllipseIntersector(geometry.tx, geometry.rx[i], geometry.rx[j])
+        # the field-of-view test of SensorGeometry.in_field_of_view, with its constants
+        # computed once: cos(bearing - boresight) >= cos(half beamwidth + margin)
+        half = min(0.5 * geometry.beamwidth + self.config.fov_margin, np.pi)
+        self._fov_centre = geometry.centre
+        self._fov_dir = np.array([np.cos(geometry.boresight), np.sin(geometry.boresight)])
+        self._fov_cos = float(np.cos(half))
 
     def reset(self) -> None:
         """Forget the background, the noise statistics and the range tracks."""
@@ -266,20 +289,24 @@ class NodeDsp:
         if self._cfar is None or self._cfar.complex_input != is_complex:
             self._cfar = self._make_cfar(is_complex)
         y = self._background.step(h[:, self._i0 : self._i1])
-        det_r, det_a = self._cfar.step(y)
-        ranges, amps = self._phd.step_channels(t, det_r, det_a)
+        # estimate rows (rate variance, range, rate, amplitude, channel)
+        est = self._phd.step_detections(t, *self._cfar.detect(y))
+        spans = self._phd.channel_spans(est)
+        ranges = tuple(est[a:b, 1] for a, b in spans)
+        amps = tuple(est[a:b, 3] for a, b in spans)
         if self._pair is None or self._associator is None:
             return DspResult(t=t, ranges=ranges, amplitudes=amps)
         i, j = self._pair
-        k1, k2 = self._associator.associate(ranges[i], ranges[j])
+        e1, e2 = est[slice(*spans[i])].T, est[slice(*spans[j])].T
+        k1, k2 = self._associator.associate(e1[1], e2[1], e1[_FEATURES], e2[_FEATURES])
         if k1.size == 0:
             return DspResult(t=t, ranges=ranges, amplitudes=amps, rx_pair=self._pair)
-        g = self._geometry
-        tx, rx1, rx2 = g.tx[:2], g.rx[i, :2], g.rx[j, :2]
-        off = self.config.range_offset
-        pts, _ = intersect_ellipses(tx, rx1, rx2, ranges[i][k1] + off, ranges[j][k2] + off)
-        pts = pts[g.in_field_of_view(pts, margin=self.config.fov_margin)]
-        cov, ok = position_covariance(pts, tx, rx1, rx2, self.config.range_std)
+        paired = np.array((e1[1, k1], e2[1, k2]))
+        paired += self.config.range_offset
+        pts, _ = self._intersector.intersect(paired)
+        cov, ok = self._intersector.covariance(pts, self.config.range_std)
+        rel = pts - self._fov_centre
+        ok &= rel @ self._fov_dir >= np.hypot(rel[:, 0], rel[:, 1]) * self._fov_cos
         return DspResult(
             t=t,
             ranges=ranges,

@@ -15,10 +15,20 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 _SQRT_2PI = np.sqrt(2.0 * np.pi)
-_W, _R, _V, _PRR, _PRV, _PVV, _AMP, _CH = range(8)
+# columns of a component row: weight, covariance entries (prr, prv, pvv), mean (range,
+# range rate), amplitude, channel; pvv to channel are contiguous so that an estimate is a
+# slice of a row
+_W, _PRR, _PRV, _PVV, _R, _V, _AMP, _CH = range(8)
 _NCOL = 8
-_SPREAD_A = np.array([0, 0, 1])  # index pairs giving (er*er, er*ev, ev*ev)
-_SPREAD_B = np.array([0, 1, 1])
+# channel c lives on the stretch [c * _CH_SPAN, (c + 1) * _CH_SPAN) of one range axis:
+# innovations across channels are ~1e6 m, so their likelihood is exactly 0 and their
+# components never merge, with no channel masks (float64 keeps 1e-10 m resolution there)
+_CH_SPAN = 1.0e6
+_PAIR_A = np.array([0, 0, 1])  # index pairs giving (dr*dr, dr*dv, dv*dv)
+_PAIR_B = np.array([0, 1, 1])
+_QUAD_SIGN = np.array([1.0, -2.0, 1.0])
+ESTIMATE_COLUMNS = ("range_rate_var", "range", "range_rate", "amplitude", "channel")
+"""Columns of the estimate rows returned by :meth:`RangeGmPhdFilter.step_detections`."""
 
 
 class RangeGmPhdFilter:
@@ -102,6 +112,7 @@ class RangeGmPhdFilter:
         self.prune_threshold = float(prune_threshold)
         self.merge_threshold = float(merge_threshold)
         self.max_components = int(max_components)
+        self._channel_edges = np.arange(self.n_channels + 1) - 0.5
         self._birth_row = np.zeros((1, _NCOL))
         self._birth_row[0, [_W, _PRR, _PVV]] = (
             self.birth_weight,
@@ -113,10 +124,12 @@ class RangeGmPhdFilter:
     def reset(self) -> None:
         """Empty the mixture."""
         self._t: float | None = None
-        # one row per component: columns _W.._CH (weight, range and range-rate means,
-        # covariance entries prr, prv, pvv, amplitude, channel); a single array keeps
-        # the number of numpy calls per step small
+        # one row per component (columns _W.._CH); a single array keeps the number of
+        # numpy calls per step small, whatever the number of channels
         self._x = np.empty((0, _NCOL))
+        self._dt = -1.0
+        self._transition = np.eye(_NCOL)
+        self._noise = np.zeros(_NCOL)
 
     @property
     def expected_count(self) -> FloatArray:
@@ -170,10 +183,52 @@ class RangeGmPhdFilter:
         """
         if len(ranges) != self.n_channels or len(amplitudes) != self.n_channels:
             raise ValueError(f"expected {self.n_channels} channels, got {len(ranges)}")
+        rs = [np.asarray(r, dtype=np.float64).ravel() for r in ranges]
+        r = np.concatenate(rs)
+        a = np.concatenate([np.asarray(x, dtype=np.float64).ravel() for x in amplitudes])
+        ch = np.repeat(np.arange(self.n_channels), [x.size for x in rs])
+        order = np.lexsort((r, ch))
+        est = self.step_detections(t, r[order], a[order], ch[order])
+        spans = self.channel_spans(est)
+        return (
+            tuple(est[i:j, 1] for i, j in spans),
+            tuple(est[i:j, 3] for i, j in spans),
+        )
+
+    def channel_spans(self, estimates: FloatArray) -> list[tuple[int, int]]:
+        """Row ranges ``[(start, stop), ...]`` of each channel in :meth:`step_detections` rows."""
+        bounds = np.searchsorted(estimates[:, 4], self._channel_edges)
+        return list(itertools.pairwise(bounds.tolist()))
+
+    def step_detections(
+        self,
+        t: float,
+        ranges: FloatArray,
+        amplitudes: FloatArray,
+        channels: npt.NDArray[np.intp],
+    ) -> FloatArray:
+        """One cycle on the detections of all channels, given as flat sorted arrays.
+
+        Parameters
+        ----------
+        t : float
+            Time, s.
+        ranges, amplitudes : ndarray, float64, shape (k,)
+            CFAR detections (m) and their amplitudes, sorted by (channel, range).
+        channels : ndarray, int, shape (k,)
+            Channel of each detection.
+
+        Returns
+        -------
+        ndarray, float64, shape (l, 5)
+            Estimates sorted by (channel, range), columns :data:`ESTIMATE_COLUMNS`:
+            variance of the range rate (m^2/s^2), range (m), range rate (m/s),
+            amplitude, channel (as float).
+        """
         dt = 0.0 if self._t is None else max(float(t) - self._t, 0.0)
         self._t = float(t)
         self._predict(dt)
-        z, za, zc = self._cluster(ranges, amplitudes)
+        z, za, zc = self._cluster(ranges, amplitudes, channels)
         self._update(z, za, zc)
         self._prune_merge()
         return self._extract()
@@ -182,104 +237,126 @@ class RangeGmPhdFilter:
         x = self._x
         if x.shape[0] == 0 or dt == 0.0:
             return
-        q = self.q
-        # mean: F m; covariance entries (prr, prv, pvv) of F P F^T + Q, as one matmul
-        x[:, _R : _V + 1] = x[:, _R : _V + 1] @ np.array([[1.0, 0.0], [dt, 1.0]])
-        cov_map = np.array([[1.0, 0.0, 0.0], [2.0 * dt, 1.0, 0.0], [dt * dt, dt, 1.0]])
-        x[:, _PRR : _PVV + 1] = x[:, _PRR : _PVV + 1] @ cov_map + np.array(
-            [q * dt**3 / 3.0, 0.5 * q * dt * dt, q * dt]
-        )
-        x[:, _W] *= self.ps
+        if abs(dt - self._dt) > 1e-6:
+            # x_row @ transition: range += dt * rate, (prr, prv, pvv) of F P F^T, w *= pS;
+            # then + noise (Q and nothing else); rebuilt only when the step changes by more
+            # than 1 us (timestamps jitter; 1 us moves a walker by a micrometre)
+            f = np.eye(_NCOL)
+            f[_W, _W] = self.ps
+            f[_V, _R] = dt
+            f[_PRV, _PRR] = 2.0 * dt
+            f[_PVV, _PRR] = dt * dt
+            f[_PVV, _PRV] = dt
+            q = self.q
+            noise = np.zeros(_NCOL)
+            noise[_PRR : _PVV + 1] = (q * dt**3 / 3.0, 0.5 * q * dt * dt, q * dt)
+            self._dt, self._transition, self._noise = dt, f, noise
+        x = x @ self._transition
+        x += self._noise
+        self._x = x
 
     def _cluster(
-        self, ranges: Sequence[npt.ArrayLike], amplitudes: Sequence[npt.ArrayLike]
-    ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.intp]]:
-        """Merge the detections of an extended echo into one measurement per cluster."""
-        rs = [np.asarray(r, dtype=np.float64).ravel() for r in ranges]
-        counts = [r.size for r in rs]
-        if sum(counts) == 0:
-            return np.empty(0), np.empty(0), np.empty(0, dtype=np.intp)
-        r = np.concatenate(rs)
-        a = np.concatenate([np.asarray(x, dtype=np.float64).ravel() for x in amplitudes])
-        ch = np.repeat(np.arange(self.n_channels), counts)
-        order = np.lexsort((r, ch))
-        r, a, ch = r[order], a[order], ch[order]
+        self, r: FloatArray, a: FloatArray, ch: npt.NDArray[np.intp]
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Merge the detections of an extended echo into one measurement per cluster.
+
+        Returns the measurements on the channel-offset range axis, their amplitudes and
+        channels (as float).
+        """
+        if r.size == 0:
+            return r, a, r
+        ch = ch.astype(np.float64)
+        key = ch * _CH_SPAN
+        key += r
         new = np.empty(r.size, dtype=bool)
         new[0] = True
-        new[1:] = ((r[1:] - r[:-1]) > self.cluster_gap) | (ch[1:] != ch[:-1])
-        starts = np.flatnonzero(new)
+        np.greater(key[1:] - key[:-1], self.cluster_gap, out=new[1:])
+        starts = new.nonzero()[0]
+        if starts.size == r.size:  # no extended echo: every detection is a measurement
+            return key, a, ch
         # power-weighted centre: the strongest scatterers of a body dominate its range
         p = a * a
-        psum = np.add.reduceat(p, starts)
-        z = np.add.reduceat(p * r, starts) / psum
+        z = np.add.reduceat(p * key, starts) / np.add.reduceat(p, starts)
         return z, np.maximum.reduceat(a, starts), ch[starts]
 
-    def _update(self, z: FloatArray, za: FloatArray, zc: npt.NDArray[np.intp]) -> None:
+    def _update(self, z: FloatArray, za: FloatArray, zc: FloatArray) -> None:
         x = self._x
-        if z.size == 0:
+        m = z.size
+        if m == 0:
             x[:, _W] *= 1.0 - self.pd
             return
-        explained = np.zeros(z.size)
-        parts = [x]
-        if x.shape[0]:
-            prr, prv = x[:, _PRR], x[:, _PRV]
-            s = prr + self.range_var  # innovation variance, (J,)
-            innov = z[None, :] - x[:, _R : _R + 1]  # (J, M)
-            # pD w_j N(z; m_j, s_j), zero across receivers
-            coef = x[:, _W] * (self.pd / _SQRT_2PI) / np.sqrt(s)
-            num = np.exp(innov * innov * (-0.5 / s)[:, None])
-            num *= coef[:, None] * (x[:, _CH : _CH + 1] == zc[None, :])
-            wu = num / (self.kappa + num.sum(axis=0))
-            explained = wu.sum(axis=0)
+        n = x.shape[0]
+        explained = 0.0
+        hyp = x[:0]
+        if n:
+            s = x[:, _PRR] + self.range_var  # innovation variance, (J,)
+            innov = z - x[:, _R, None]  # (J, M); exactly 0 likelihood across channels
+            lik = innov * innov
+            lik *= (-0.5 / s)[:, None]
+            np.exp(lik, out=lik)
+            # pD w_j N(z; m_j, s_j), normalised over components and clutter
+            lik *= (x[:, _W] * (self.pd / _SQRT_2PI) / np.sqrt(s))[:, None]
+            den = np.add.reduce(lik, 0)
+            den += self.kappa
+            lik /= den
+            explained = np.add.reduce(lik, 0)
             # keep only the (component, measurement) hypotheses that matter
-            jj, mm = np.nonzero(wu > self.prune_threshold)
-            k0, k1 = prr / s, prv / s
+            jj, mm = (lik > self.prune_threshold).nonzero()
+            hyp = x[jj]
             inn = innov[jj, mm]
-            y = x[jj]
-            kj0, kj1 = k0[jj], k1[jj]
-            y[:, _W] = wu[jj, mm]
-            y[:, _R] += kj0 * inn
-            y[:, _V] += kj1 * inn
-            y[:, _PVV] -= kj1 * y[:, _PRV]
-            y[:, _PRR : _PRV + 1] *= (1.0 - kj0)[:, None]
-            y[:, _AMP] = za[mm]
+            sj = s[jj]
+            k_r = hyp[:, _PRR] / sj  # Kalman gain of range and rate
+            k_v = hyp[:, _PRV] / sj
+            hyp[:, _W] = lik[jj, mm]
+            hyp[:, _R] += k_r * inn
+            hyp[:, _V] += k_v * inn
+            hyp[:, _PVV] -= k_v * hyp[:, _PRV]
+            hyp[:, _PRR : _PRV + 1] *= (1.0 - k_r)[:, None]
+            hyp[:, _AMP] = za[mm]
             x[:, _W] *= 1.0 - self.pd
-            parts.append(y)
         # adaptive birth at the measurements the mixture does not explain yet
-        b = np.repeat(self._birth_row, z.size, axis=0)
-        b[:, _W] *= np.maximum(1.0 - explained, 0.0)  # explained >= 0
+        b = np.repeat(self._birth_row, m, axis=0)
+        b[:, _W] *= np.maximum(1.0 - explained, 0.0)
         b[:, _R] = z
         b[:, _AMP] = za
         b[:, _CH] = zc
-        parts.append(b)
-        self._x = np.concatenate(parts)
+        self._x = np.concatenate((x, hyp, b))
 
     def _prune_merge(self) -> None:
         """Prune light components, merge neighbours in range, cap; leaves rows sorted."""
         x = self._x
-        x = x[x[:, _W] > self.prune_threshold]
+        x = x.compress(x[:, _W] > self.prune_threshold, axis=0)
         n = x.shape[0]
         if n > 1:
-            x = x[np.lexsort((x[:, _R], x[:, _CH]))]
+            # sorting the channel-offset range sorts by (channel, range)
+            x = x.take(x[:, _R].argsort(), axis=0)
             w = x[:, _W]
             # squared Mahalanobis distance between neighbours in range, with the 2x2
             # covariance of the heavier one written out (no matrix inverse); merging
             # runs of neighbours keeps the work linear in the number of components
-            dr = x[1:, _R] - x[:-1, _R]
-            dv = x[1:, _V] - x[:-1, _V]
-            heavy = np.where((w[1:] >= w[:-1])[:, None], x[1:], x[:-1])
-            prr, prv, pvv = heavy[:, _PRR], heavy[:, _PRV], heavy[:, _PVV]
-            d2 = pvv * dr * dr - 2.0 * prv * dr * dv + prr * dv * dv
+            dr, dv = (x[1:, _R : _V + 1] - x[:-1, _R : _V + 1]).T
+            cov = np.where(
+                (w[1:] >= w[:-1])[:, None], x[1:, _PRR : _PVV + 1], x[:-1, _PRR : _PVV + 1]
+            )
+            prr, prv, pvv = cov.T
+            # d^T adj(P) d <= gate * det(P)
+            d2 = (pvv * dr - 2.0 * prv * dv) * dr + prr * dv * dv
             join = d2 <= self.merge_threshold * (prr * pvv - prv * prv)
-            join &= x[1:, _CH] == x[:-1, _CH]
-            if join.any():
-                starts = np.flatnonzero(np.concatenate(([True], ~join)))
-                counts = np.diff(np.append(starts, n))
+            if np.count_nonzero(join):
+                first = np.empty(n, dtype=bool)
+                first[0] = True
+                np.logical_not(join, out=first[1:])
+                starts = first.nonzero()[0]
+                group = np.add.accumulate(first) - 1
                 ws = np.add.reduceat(w, starts)
                 # moment matching: weighted means of every column, plus the spread
-                merged = np.add.reduceat(x * w[:, None], starts, axis=0) / ws[:, None]
-                e = x[:, _R : _V + 1] - np.repeat(merged[:, _R : _V + 1], counts, axis=0)
-                spread = e[:, _SPREAD_A] * e[:, _SPREAD_B] * w[:, None]
+                wx = x * w[:, None]
+                merged = np.add.reduceat(wx, starts, axis=0) / ws[:, None]
+                e = x[:, _R : _V + 1] - merged[group, _R : _V + 1]
+                we = e * w[:, None]
+                spread = np.empty((n, 3))
+                spread[:, :2] = we[:, :1] * e
+                spread[:, 2] = we[:, 1] * e[:, 1]
                 merged[:, _PRR : _PVV + 1] += np.add.reduceat(spread, starts, axis=0) / ws[:, None]
                 merged[:, _W] = ws
                 # members share a channel; rint undoes the rounding of the weighted mean
@@ -290,13 +367,13 @@ class RangeGmPhdFilter:
             x = x[np.sort(top)]  # keep the (channel, range) order
         self._x = x
 
-    def _extract(self) -> tuple[tuple[FloatArray, ...], tuple[FloatArray, ...]]:
+    def _extract(self) -> FloatArray:
         x = self._x
-        sel = np.flatnonzero(x[:, _W] > 0.5)
-        # a weight near 2 means two unresolved targets at that range
-        reps = np.maximum(np.rint(x[sel, _W]), 1).astype(np.intp)
-        e = x[np.repeat(sel, reps)]  # rows are sorted by (channel, range)
-        bounds = np.searchsorted(e[:, _CH], np.arange(self.n_channels + 1) - 0.5).tolist()
-        spans = list(itertools.pairwise(bounds))
-        r, amp = e[:, _R], e[:, _AMP]
-        return tuple(r[a:b] for a, b in spans), tuple(amp[a:b] for a, b in spans)
+        e = x[x[:, _W] > 0.5]
+        w = e[:, _W]
+        if np.count_nonzero(w >= 1.5):
+            # a weight near 2 means two unresolved targets at that range
+            e = np.repeat(e, np.rint(w).astype(np.intp), axis=0)
+        est = e[:, _PVV:]  # a copy's slice: (rate variance, range, rate, amplitude, channel)
+        est[:, 1] -= est[:, 4] * _CH_SPAN
+        return est

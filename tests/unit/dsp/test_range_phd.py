@@ -41,3 +41,22 @@ def test_two_separated_targets_per_channel_independent():
     # detected target settles at 1 / pD, which extraction rounds to 1
     n = phd.expected_count
     assert np.all(n >= [1.9, 0.95]) and np.all(n <= np.array([2, 1]) / phd.pd + 0.05)
+
+
+def test_range_rate_and_flat_interface(rng):
+    # the rate estimate is what pairs a person's ranges at two receivers: it must follow
+    # the motion (process noise 0.5 m^2/s^3 and 5 cm ranges at 50 Hz: ~0.1 m/s)
+    phd = RangeGmPhdFilter(n_channels=2, range_std=0.05, process_noise=0.5)
+    rates = []
+    for k in range(60):
+        t = 10.0 + k / 50
+        r = np.array([4.0 + 1.5 * (t - 10.0), 7.0 - 0.8 * (t - 10.0)])
+        r += 0.02 * rng.standard_normal(2)
+        est = phd.step_detections(t, r, np.ones(2), np.array([0, 1]))
+        assert est.shape[1] == 5 and np.all(np.diff(est[:, 4]) >= 0)
+        if k >= 30:
+            rates.append(est[:, 2])
+    rates = np.array(rates)
+    np.testing.assert_allclose(np.median(rates, axis=0), [1.5, -0.8], atol=0.1)
+    spans = phd.channel_spans(est)
+    assert [b - a for a, b in spans] == [1, 1]

@@ -96,6 +96,11 @@ class GmPhdConfig:
         A confirmed label stays reported while its summed weight is above this (hysteresis:
         each missed detection of a sensor leaves ``1 - p_D`` of the weight, and several
         sensors in a row may miss; a person who left is below it after a frame or two).
+    split_threshold : float
+        A component of a label, other than its heaviest, that is this heavy and far from it
+        (beyond the merge distance) becomes a new label: one label's weight split over two
+        people (capped at 1 in all) would otherwise hide the second person, whose
+        measurements it claims, so that no birth follows either.
     confirm_steps : int
         Steps with summed weight above ``extract_threshold`` before a label is reported.
     reid_time, reid_radius, reid_speed : float
@@ -175,6 +180,7 @@ class GmPhdConfig:
     max_label_weight: float = 1.0
     extract_threshold: float = 0.5
     keep_threshold: float = 0.4
+    split_threshold: float = 0.2
     confirm_steps: int = 3
     coast_time: float = 0.25
     reid_time: float = 2.0
@@ -960,7 +966,7 @@ class GmPhdTracker(Tracker):
         first = np.ones(lab.size, dtype=bool)
         first[1:] = lab[1:] != lab[:-1]
         # A second heavy component of one label is another target: give it a fresh label.
-        dup = ~first & (mix.w[order] >= cfg.extract_threshold)
+        dup = ~first & (mix.w[order] >= cfg.split_threshold)
         if dup.any():
             # ... unless it sits on the head of its label (it differs in velocity only).
             head_of = order[np.maximum.accumulate(np.where(first, np.arange(lab.size), 0))]

@@ -32,7 +32,10 @@ class NodeDspConfig:
     noise_censor : float
         Fraction of ``noise_alpha`` used in bins that cross the threshold.
     pfa : float
-        CFAR false-alarm probability per range sample.
+        CFAR false-alarm probability per range sample. 1e-3 rather than a stricter value:
+        far people's echoes sit only 3-4 noise standard deviations high, and the false alarms
+        this lets through are cleaned by the range GM-PHD and by the fusion center, which
+        weighs each estimate by how many sensors confirm it.
     min_range_guard : float
         Ranges shorter than the direct path Tx->Rx plus this guard (m) are ignored:
         residuals of the strong coupling live there.
@@ -89,7 +92,7 @@ class NodeDspConfig:
     background_alpha: float = 0.05
     noise_alpha: float = 0.005
     noise_censor: float = 0.1
-    pfa: float = 1e-4
+    pfa: float = 1e-3
     min_range_guard: float = 0.5
     max_range: float | None = None
     range_std: float = 0.05

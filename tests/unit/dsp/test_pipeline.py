@@ -8,7 +8,7 @@ from .synth import M_SEQUENCE, bat_geometry, bistatic_ranges, body_offsets, scen
 WARMUP = 25  # 0.5 s: the ghost of the scene at start-up leaves the background (alpha 0.05)
 # the synthetic bodies scatter strongest from their centre (synth.body_offsets), unlike
 # a real body's front surface: no range offset
-CENTRE_ECHO = NodeDspConfig(range_offset=0.0)
+CENTRE_ECHO = NodeDspConfig(range_offset=0.0, pfa=1e-4)
 
 
 def run_walk(radar, geometry, start, velocity, rng, frames=75, config=None, people=1):
@@ -190,7 +190,9 @@ def test_pairing_by_range_rate_avoids_axis_ghosts():
     assert real > 45 and ghosts <= 0.1 * real
     # the same scene paired by range difference only (rates and amplitudes ignored) has
     # ghosts while the two cross in range: the scene is ambiguous, the test can fail
-    blind = NodeDspConfig(range_offset=0.0, pairing_rate_std=1e6, pairing_log_amplitude_std=1e6)
+    blind = NodeDspConfig(
+        range_offset=0.0, pfa=1e-4, pairing_rate_std=1e6, pairing_log_amplitude_std=1e6
+    )
     ghosts_blind, _ = ghost_fraction(blind, np.random.default_rng(20240611))
     assert ghosts_blind >= max(2 * ghosts, 5)
 

@@ -33,7 +33,7 @@ from protocol import (
     keys,
 )
 from protocol.errors import KeyExprError
-from protocol.transport import FifoChannel
+from protocol.transport import FifoChannel, stop_worker
 
 log = logging.getLogger(__name__)
 
@@ -140,16 +140,8 @@ class FusionService:
         )
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
-        for d in reversed(self._decl):
-            try:
-                d.undeclare()
-            except zenoh.ZError:
-                pass
-        self._decl.clear()
+        stop_worker(self._stop, self._thread, self._decl)
+        self._thread = None
 
     def _on_schedule_query(self, query: zenoh.Query) -> None:
         if self._schedule_bytes:

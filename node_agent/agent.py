@@ -21,7 +21,7 @@ from node_agent.drivers.base import DriverError, RadarDriver
 from node_agent.dsp.pipeline import NodeDspConfig
 from node_agent.tdma import next_slot
 from protocol import Ir, NodeInfo, ProtocolError, Status, TdmaSchedule, keys
-from protocol.transport import FifoChannel
+from protocol.transport import FifoChannel, stop_worker
 
 log = logging.getLogger(__name__)
 
@@ -119,16 +119,8 @@ class NodeAgent:
 
     def stop(self) -> None:
         """Stop the worker and undeclare everything. Idempotent."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
-        for d in reversed(self._decl):
-            try:
-                d.undeclare()
-            except zenoh.ZError:  # the session may already be closing
-                pass
-        self._decl.clear()
+        stop_worker(self._stop, self._thread, self._decl)
+        self._thread = None
 
     def _on_info_query(self, query: zenoh.Query) -> None:
         # Reply on our own concrete key, not on the query's wildcard.

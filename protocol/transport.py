@@ -15,7 +15,7 @@ import socket
 import threading
 import time
 from collections.abc import Sequence
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 import zenoh
 
@@ -57,6 +57,25 @@ def session_config(
     if lease_ms is not None:
         conf.insert_json5("transport/link/tx/lease", json.dumps(lease_ms))
     return conf
+
+
+def stop_worker(
+    stop: threading.Event, thread: threading.Thread | None, declarations: list[Any]
+) -> None:
+    """Stop a service's worker thread and undeclare its zenoh entities, newest first.
+
+    Idempotent: ``declarations`` is emptied. An entity whose session is already closing is
+    skipped (zenoh raises ``ZError`` for it).
+    """
+    stop.set()
+    if thread is not None:
+        thread.join(timeout=5.0)
+    for d in reversed(declarations):
+        try:
+            d.undeclare()
+        except zenoh.ZError:
+            pass
+    declarations.clear()
 
 
 def free_tcp_port() -> int:

@@ -103,18 +103,22 @@ class RangePairAssociator:
         """
         a = np.asarray(r1, dtype=np.float64).ravel()
         b = np.asarray(r2, dtype=np.float64).ravel()
-        if a.size == 0 or b.size == 0:
+        # a few ranges per receiver: the admissible pairs are listed in plain Python, which
+        # costs less than the numpy calls it replaces
+        thr = self.threshold
+        bl = b.tolist()
+        pairs = [
+            (i, j) for i, x in enumerate(a.tolist()) for j, y in enumerate(bl) if abs(x - y) <= thr
+        ]
+        if not pairs:
             return np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
+        n = len(pairs)
+        if n == len({i for i, _ in pairs}) == len({j for _, j in pairs}):
+            # no range competes for another: the admissible pairs are the assignment
+            i1, i2 = np.array(pairs, dtype=np.intp).T
+            return i1, i2
         diff = np.abs(a[:, None] - b[None, :])
         admissible = diff <= self.threshold
-        n_admissible = np.count_nonzero(admissible)
-        if n_admissible <= 1 or (
-            n_admissible == np.count_nonzero(np.logical_or.reduce(admissible, 0))
-            and n_admissible == np.count_nonzero(np.logical_or.reduce(admissible, 1))
-        ):
-            # no range competes for another: the admissible pairs are the assignment
-            i1, i2 = admissible.nonzero()
-            return i1, i2
         cost = diff * (1e-3 / self.threshold)
         if features1 is not None and features2 is not None:
             f1 = np.asarray(features1, dtype=np.float64)

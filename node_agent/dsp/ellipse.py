@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
@@ -121,6 +123,96 @@ class EllipseIntersector:
         pair, which = valid.T.nonzero()
         points = (p0[:, pair] + p1[:, pair] * d[which, pair]).T + self.tx
         return points, pair
+
+    def locate(
+        self, r1: list[float], r2: list[float], range_std: float
+    ) -> list[tuple[float, float, float, float, float]]:
+        """:meth:`intersect` then :meth:`covariance` of a handful of range pairs.
+
+        The same arithmetic in plain Python floats: a node pairs a few ranges per impulse
+        response, where each numpy call would cost more than its whole scalar loop.
+
+        Parameters
+        ----------
+        r1, r2 : list of float, length k
+            Paired bistatic ranges at rx1 and rx2, m.
+        range_std : float
+            Standard deviation of each range, m.
+
+        Returns
+        -------
+        list of tuple
+            ``(x, y, c_xx, c_xy, c_yy)`` per intersection point (world x, y in m and its
+            covariance in m^2), in :meth:`intersect` order; points of singular geometry
+            (``ok`` False in :meth:`covariance`) are left out.
+        """
+        tx, ty = float(self.tx[0]), float(self.tx[1])
+        n1, n2 = float(self._norm2[0, 0]), float(self._norm2[1, 0])
+        points: list[tuple[float, float]] = []
+        if self.collinear:
+            kappa, len1 = self._kappa, self._len1
+            (ax, ay), (cx, cy) = self._frame.tolist()
+            for a, c in zip(r1, r2, strict=True):
+                b0, b1 = (n1 - a * a) * 0.5, (n2 - c * c) * 0.5
+                den = kappa * a - c
+                if den == 0.0:  # no unique solution (kappa >= 0 only): no point
+                    continue
+                d = (b1 - kappa * b0) / den
+                s = (b0 + a * d) / len1
+                across2 = d * d - s * s
+                if not (0 < d <= min(a, c) * (1.0 + 1e-9) and across2 >= -1e-12 * d * d):
+                    continue
+                off = math.sqrt(max(across2, 0.0))
+                points.append((s * ax + off * cx + tx, s * ay + off * cy + ty))
+                if across2 > 0:  # a point on the baseline once, not twice
+                    points.append((s * ax - off * cx + tx, s * ay - off * cy + ty))
+        else:
+            (i00, i01), (i10, i11) = self._inverse.tolist()
+            for a, c in zip(r1, r2, strict=True):
+                b0, b1 = (n1 - a * a) * 0.5, (n2 - c * c) * 0.5
+                p0x, p0y = i00 * b0 + i01 * b1, i10 * b0 + i11 * b1
+                p1x, p1y = i00 * a + i01 * c, i10 * a + i11 * c
+                qa = p1x * p1x + p1y * p1y - 1.0
+                qb = p0x * p1x + p0y * p1y
+                qc = p0x * p0x + p0y * p0y
+                disc = qb * qb - qa * qc
+                if not disc >= -1e-12 * (qb * qb + abs(qa * qc)):
+                    continue
+                sq = math.sqrt(max(disc, 0.0))
+                qq = -(qb + math.copysign(sq, qb))
+                r_min = min(a, c) * (1.0 + 1e-9)
+                # a zero denominator is a root at infinity (NaN/inf in intersect): no point
+                roots = (qq / qa if qa != 0.0 else math.inf, qc / qq if qq != 0.0 else math.inf)
+                for k, d in enumerate(roots):
+                    if 0 < d <= r_min and (k == 0 or sq > 1e-9 * abs(qb)):
+                        points.append((p0x + p1x * d + tx, p0y + p1y * d + ty))
+        out = []
+        var = range_std * range_std
+        (x0, y0), (x1, y1), (x2, y2) = self.antennas.tolist()
+        for px, py in points:
+            ux, uy = px - x0, py - y0
+            dist = max(math.hypot(ux, uy), 1e-12)
+            ux, uy = ux / dist, uy / dist
+            j00, j01 = px - x1, py - y1
+            dist = max(math.hypot(j00, j01), 1e-12)
+            j00, j01 = j00 / dist + ux, j01 / dist + uy
+            j10, j11 = px - x2, py - y2
+            dist = max(math.hypot(j10, j11), 1e-12)
+            j10, j11 = j10 / dist + ux, j11 / dist + uy
+            det = j00 * j11 - j01 * j10
+            det2 = det * det
+            if det2 > 1e-12:
+                f = var / det2
+                out.append(
+                    (
+                        px,
+                        py,
+                        (j11 * j11 + j01 * j01) * f,
+                        (-j11 * j10 - j01 * j00) * f,
+                        (j10 * j10 + j00 * j00) * f,
+                    )
+                )
+        return out
 
     def covariance(
         self, points: npt.ArrayLike, range_std: float

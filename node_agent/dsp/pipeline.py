@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -233,8 +234,9 @@ class NodeDsp:
         # the field-of-view test of SensorGeometry.in_field_of_view, with its constants
         # computed once: cos(bearing - boresight) >= cos(half beamwidth + margin)
         half = min(0.5 * geometry.beamwidth + self.config.fov_margin, np.pi)
-        self._fov_centre = geometry.centre
-        self._fov_dir = np.array([np.cos(geometry.boresight), np.sin(geometry.boresight)])
+        # (centre x, centre y, boresight x, boresight y, cos), floats for the scalar test
+        cx, cy = np.asarray(geometry.centre, dtype=np.float64).ravel()[:2].tolist()
+        self._fov = (cx, cy, float(np.cos(geometry.boresight)), float(np.sin(geometry.boresight)))
         self._fov_cos = float(np.cos(half))
 
     def reset(self) -> None:
@@ -304,17 +306,29 @@ class NodeDsp:
         k1, k2 = self._associator.associate(e1[1], e2[1], e1[_FEATURES], e2[_FEATURES])
         if k1.size == 0:
             return DspResult(t=t, ranges=ranges, amplitudes=amps, rx_pair=self._pair)
-        paired = np.array((e1[1, k1], e2[1, k2]))
-        paired += self.config.range_offset
-        pts, _ = self._intersector.intersect(paired)
-        cov, ok = self._intersector.covariance(pts, self.config.range_std)
-        rel = pts - self._fov_centre
-        ok &= rel @ self._fov_dir >= np.hypot(rel[:, 0], rel[:, 1]) * self._fov_cos
+        # a handful of pairs: scalar arithmetic (EllipseIntersector.locate) beats numpy calls
+        off = self.config.range_offset
+        located = self._intersector.locate(
+            [r + off for r in e1[1, k1].tolist()],
+            [r + off for r in e2[1, k2].tolist()],
+            self.config.range_std,
+        )
+        # field of view: cos(bearing - boresight) >= cos(half beamwidth + margin)
+        cx, cy, dx, dy = self._fov
+        fov_cos = self._fov_cos
+        kept = [
+            p
+            for p in located
+            if (p[0] - cx) * dx + (p[1] - cy) * dy >= math.hypot(p[0] - cx, p[1] - cy) * fov_cos
+        ]
+        if not kept:
+            return DspResult(t=t, ranges=ranges, amplitudes=amps, rx_pair=self._pair)
+        rows = np.array(kept)
         return DspResult(
             t=t,
             ranges=ranges,
             amplitudes=amps,
-            positions=pts[ok],
-            cov=cov[ok],
+            positions=rows[:, (0, 1)],
+            cov=rows[:, (2, 3, 3, 4)].reshape(-1, 2, 2),
             rx_pair=self._pair,
         )

@@ -314,13 +314,19 @@ class RangeGmPhdFilter:
             hyp[:, _PRR : _PRV + 1] *= (1.0 - k_r)[:, None]
             hyp[:, _AMP] = za[mm]
             x[:, _W] *= 1.0 - self.pd
+        # one allocation for survivors, updated hypotheses and births
+        k = n + hyp.shape[0]
+        out = np.empty((k + m, _NCOL))
+        out[:n] = x
+        out[n:k] = hyp
         # adaptive birth at the measurements the mixture does not explain yet
-        b = np.repeat(self._birth_row, m, axis=0)
+        b = out[k:]
+        b[:] = self._birth_row
         b[:, _W] *= np.maximum(1.0 - explained, 0.0)
         b[:, _R] = z
         b[:, _AMP] = za
         b[:, _CH] = zc
-        self._x = np.concatenate((x, hyp, b))
+        self._x = out
 
     def _prune_merge(self) -> None:
         """Prune light components, merge neighbours in range, cap; leaves rows sorted."""

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from node_agent.dsp import (
+    EllipseIntersector,
     RangePairAssociator,
     intersect_ellipses,
     pairing_threshold,
@@ -137,3 +138,23 @@ def test_association_pairs_by_range_rate_not_smallest_difference():
     feat2 = np.array([var, [1.0, -1.0], amp])
     i1, i2 = assoc.associate(r1, r2_listed, feat1, feat2)
     assert dict(zip(i1.tolist(), i2.tolist(), strict=True)) == {0: 1, 1: 0}
+
+
+@pytest.mark.parametrize(
+    "antennas",
+    [
+        ((0.0, 0.0), (0.0, 0.5), (0.0, -0.5)),  # bat: collinear antennas
+        ((0.0, 0.0), (1.0, 0.2), (-0.3, 1.1)),
+    ],
+)
+def test_scalar_locate_matches_vectorized(rng, antennas):
+    tx, rx1, rx2 = (np.array(a) for a in antennas)
+    p = rng.uniform(-5.0, 5.0, size=(40, 2))
+    r1, r2 = ranges_of(p, tx, rx1, rx2)
+    r1 = r1 + rng.normal(0.0, 0.2, r1.size)  # some pairs then have no intersection
+    ell = EllipseIntersector(tx, rx1, rx2)
+    pts, _ = ell.intersect(np.array((r1, r2)))
+    cov, ok = ell.covariance(pts, 0.05)
+    got = np.array(ell.locate(r1.tolist(), r2.tolist(), 0.05)).reshape(-1, 5)
+    np.testing.assert_allclose(got[:, :2], pts[ok], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got[:, (2, 3, 3, 4)].reshape(-1, 2, 2), cov[ok], rtol=1e-9)

@@ -153,17 +153,12 @@ class NodeAgent:
         last_frame: int | None = None
         while not self._stop.is_set():
             self._take_schedule()
-            if self._schedule is None or self.tx is None:
-                if time.monotonic() - last_query > 1.0:
-                    last_query = time.monotonic()
-                    self._query_schedule()
-                else:
-                    self._stop.wait(0.05)
-                continue
-            slot = next_slot(self._schedule, self.tx, self.clock())
+            slot = None
+            if self._schedule is not None and self.tx is not None:
+                slot = next_slot(self._schedule, self.tx, self.clock())
             if slot is None:
-                # Not (yet) in the schedule: the update that adds us may have been published
-                # before our subscriber was matched, so ask the schedule queryable again.
+                # No schedule, or not (yet) in it: the update that adds us may have been
+                # published before our subscriber was matched, so ask the queryable (1 Hz).
                 if time.monotonic() - last_query > 1.0:
                     last_query = time.monotonic()
                     self._query_schedule()

@@ -6,6 +6,7 @@ from typing import Any
 
 from node_agent.drivers.base import Acquisition, RadarDriver
 from node_agent.tdma import SlotTiming
+from protocol import Antenna, RadarInfo
 from sim_nodes.network import SimNetwork
 
 
@@ -30,7 +31,6 @@ class SimulatedDriver(RadarDriver):
         super().__init__(n_rx=n_rx, n=int(self._info["radar"]["n"]))
 
     def describe(self) -> dict[str, Any]:
-        from protocol import Antenna, RadarInfo
 
         info = self._info
         return {

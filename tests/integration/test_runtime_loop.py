@@ -77,6 +77,12 @@ def test_nodes_and_fusion_exchange_schedule_detections_tracks_status(hub_endpoin
                 5.0,
                 "status of every node",
             )
+            # A node whose slot came through the 1 Hz schedule retry starts a little later.
+            _wait_for(
+                lambda: all(a.counters["acquired"] > 10 for a, _ in agents.values()),
+                5.0,
+                "10 acquisitions at every node",
+            )
             # node_info served by each node's queryable, on its own concrete key.
             replies = list(observer.get(keys.all_nodes_key(NET, "info"), timeout=2.0))
             infos = [NodeInfo.from_wire(r.ok.payload.to_bytes()) for r in replies if r.ok]

@@ -290,9 +290,8 @@ def merge_components(
     np.fill_diagonal(close, False)
     rows = np.flatnonzero(close.any(axis=1))
     if rows.size:
-        dr = diff[rows]
-        sol = np.linalg.solve(P[rows], dr.transpose(0, 2, 1))  # P_l^{-1} (m_i - m_l)
-        close[rows] &= np.einsum("lai,lia->li", sol, dr) <= threshold
+        d2 = d2_pos[rows] + _velocity_term(P[rows], diff[rows], a, b, c, rows)
+        close[rows] &= d2 <= threshold
     if protected is not None:
         prot = protected[order]
         close &= (label[:, None] == label[None, :]) | ~(prot[:, None] & prot[None, :])
@@ -331,6 +330,51 @@ def merge_components(
             label_new[clusters] = label[idx[first]]
     by_weight = np.argsort(-w_new, kind="stable")
     return w_new[by_weight], m_new[by_weight], P_new[by_weight], label_new[by_weight]
+
+
+def _velocity_term(
+    P: FloatArray,
+    diff: FloatArray,
+    a: FloatArray,
+    b: FloatArray,
+    c: FloatArray,
+    rows: npt.NDArray[np.intp],
+) -> FloatArray:
+    """Velocity part of the squared Mahalanobis distance :math:`d^T P^{-1} d`, shape (L, J).
+
+    With the state ``[x, vx, y, vy]`` split into position ``p`` and velocity ``v`` blocks,
+    :math:`P = [[A, B], [B^T, C]]`, the block inverse (Schur complement
+    :math:`S = C - B^T A^{-1} B`) gives
+
+    .. math::
+
+        d^T P^{-1} d = d_p^T A^{-1} d_p + r^T S^{-1} r,\\qquad r = d_v - B^T A^{-1} d_p,
+
+    whose first term the caller has already. Every block is 2x2, so this is closed-form
+    elementwise arithmetic: a batched ``np.linalg.solve`` over (L, 4, 4) costs more in call
+    overhead than the whole merge at the mixture sizes of a live tracker.
+
+    ``P`` (L, 4, 4) are the leaders' covariances, ``diff`` (L, J, 4) the offsets to every
+    component, ``a, b, c`` the position blocks' entries ``P[:, 0, 0], P[:, 0, 2],
+    P[:, 2, 2]`` of all components, indexed by ``rows``.
+    """
+    a, b, c = a[rows], b[rows], c[rows]
+    inv_det = 1.0 / (a * c - b * b)
+    ia, ib, ic = c * inv_det, -b * inv_det, a * inv_det  # A^{-1}
+    # B: rows position (x, y), columns velocity (vx, vy).
+    b00, b01, b10, b11 = P[:, 0, 1], P[:, 0, 3], P[:, 2, 1], P[:, 2, 3]
+    g00, g01 = ia * b00 + ib * b10, ia * b01 + ib * b11  # G = A^{-1} B
+    g10, g11 = ib * b00 + ic * b10, ib * b01 + ic * b11
+    s00 = P[:, 1, 1] - (b00 * g00 + b10 * g10)  # S = C - B^T G
+    s01 = P[:, 1, 3] - (b00 * g01 + b10 * g11)
+    s11 = P[:, 3, 3] - (b01 * g01 + b11 * g11)
+    dx, dvx, dy, dvy = diff[..., 0], diff[..., 1], diff[..., 2], diff[..., 3]
+    ux = ia[:, None] * dx + ib[:, None] * dy  # A^{-1} d_p
+    uy = ib[:, None] * dx + ic[:, None] * dy
+    r0 = dvx - (b00[:, None] * ux + b10[:, None] * uy)  # d_v - B^T A^{-1} d_p
+    r1 = dvy - (b01[:, None] * ux + b11[:, None] * uy)
+    s_det = (s00 * s11 - s01 * s01)[:, None]
+    return (s11[:, None] * r0 * r0 - 2.0 * s01[:, None] * r0 * r1 + s00[:, None] * r1 * r1) / s_det
 
 
 def fuse_estimates(

@@ -131,6 +131,32 @@ def test_merge_keeps_heaviest_label() -> None:
     assert sorted(l3.tolist()) == [1, 2, 3]
 
 
+def test_merge_gate_is_the_full_state_mahalanobis_distance(rng: np.random.Generator) -> None:
+    # Correlated position-velocity covariances: the merge must gate on d^T P_l^{-1} d over the
+    # whole state, as Vo & Ma's Table II, not on the position block alone.
+    n = 40
+    A = rng.normal(size=(n, 4, 4))
+    P = A @ A.transpose(0, 2, 1) * 0.05 + 0.01 * np.eye(4)
+    m = rng.normal(scale=0.3, size=(n, 4))
+    w = rng.uniform(0.1, 1.0, n)
+    threshold = 4.0
+    _, m2, _, _ = merge_components(w, m, P, np.arange(n), threshold)
+    # Reference: the greedy loop of Table II with explicit inverses.
+    order = np.argsort(-w, kind="stable")
+    left = list(order)
+    expected = []
+    while left:
+        lead = left[0]
+        d = m[left] - m[lead]
+        d2 = np.einsum("ia,ab,ib->i", d, np.linalg.inv(P[lead]), d)
+        members = [i for i, ok in zip(left, d2 <= threshold, strict=True) if ok]
+        expected.append((w[members] @ m[members]) / w[members].sum())
+        left = [i for i in left if i not in members]
+    key = np.lexsort(np.asarray(expected).T)
+    assert m2.shape[0] == len(expected)
+    np.testing.assert_allclose(m2[np.lexsort(m2.T)], np.asarray(expected)[key], atol=1e-12)
+
+
 def test_scan_validates_shapes() -> None:
     with pytest.raises(ValueError, match="cov has 1 matrices for 2 positions"):
         SensorScan(

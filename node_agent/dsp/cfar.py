@@ -13,6 +13,7 @@ FloatArray = npt.NDArray[np.float64]
 # median of a chi-square variable with one degree of freedom: turns the median of
 # squared Gaussian samples into their variance, robust to the few echoes present
 _CHI2_1_MEDIAN = 0.454936423119572
+_EMPTY = (np.empty(0), np.empty(0), np.empty(0, dtype=np.intp))
 
 
 class GaussianCfarDetector:
@@ -89,9 +90,13 @@ class GaussianCfarDetector:
         tail = self.pfa if not self.complex_input else 2.0 * self.pfa
         self.threshold_factor = float(np.sqrt(2.0) * erfcinv(tail))
         self._max_range = float(max_range)
-        self.set_min_range(min_range)
         self._half = max(1, round(pulse_width / abs(self._step)))
         self._offsets = np.arange(-self._half, self._half + 1)
+        # Every per-bin array lives in a padded layout: ``half`` columns on each side of the
+        # window that never cross the threshold, so that a crossing's neighbourhood
+        # (flat index + offsets) needs no clipping at the window's edges.
+        self._width = m + 2 * self._half
+        self.set_min_range(min_range)
         self._rate = np.empty(0, dtype=np.float32)
         self._mean: npt.NDArray[np.float32] | None = None
         self._var: npt.NDArray[np.float32] | None = None
@@ -101,8 +106,13 @@ class GaussianCfarDetector:
         """Change the per-receiver shortest searched range, m (geometry change)."""
         min_r = np.atleast_1d(np.asarray(min_range, dtype=np.float64))[:, None]
         valid = (self._ranges[None, :] >= min_r) & (self._ranges[None, :] <= self._max_range)
-        # an infinite factor switches a bin off without a separate mask operation
-        self._k2 = np.where(valid, self.threshold_factor**2, np.inf).astype(np.float32)
+        # an infinite factor switches a bin off without a separate mask operation; the
+        # padding columns are off
+        k2 = np.full((valid.shape[0], self._width), np.inf, dtype=np.float32)
+        k2[:, self._half : self._width - self._half] = np.where(
+            valid, self.threshold_factor**2, np.inf
+        )
+        self._k2 = k2
 
     def reset(self) -> None:
         """Forget the noise statistics."""
@@ -139,54 +149,41 @@ class GaussianCfarDetector:
         rows : ndarray, intp, shape (k,)
             Receiver (row of ``y``) of each detection.
         """
-        n_rx = y.shape[0]
+        n_rx, m = y.shape
+        if m == 0:  # the searched window is empty (guard beyond the window)
+            return _EMPTY
         if self._k2.shape[0] == 1 and n_rx > 1:
             self._k2 = np.repeat(self._k2, n_rx, axis=0)
         if self.complex_input:
             s = np.abs(y).astype(np.float32, copy=False)
         else:
             s = y.astype(np.float32, copy=False)
-        empty = np.empty(0), np.empty(0), np.empty(0, dtype=np.intp)
-        if s.shape[1] == 0:  # the searched window is empty (guard beyond the window)
-            return empty
+        half, width = self._half, self._width
         if self._var is None:
-            # initialise from a robust noise-floor estimate of this frame; an all-zero
-            # frame (the background subtractor's first output) carries no information
-            mean = np.median(s, axis=1, keepdims=True) if self.complex_input else 0.0
-            d0 = s - mean
-            var0 = np.median(d0 * d0, axis=1, keepdims=True) / _CHI2_1_MEDIAN
-            if not np.any(var0 > 0):
-                return empty
-            # a silent receiver row (all zeros) gets the floor and stays silent
-            var0 = np.maximum(var0, 1e-6 * float(np.max(var0)))
-            self._var = np.repeat(var0, s.shape[1], axis=1).astype(np.float32)
-            # an array floor: a ufunc with a scalar operand pays a dtype resolution
-            self._floor = np.full_like(self._var, 1e-6 * float(np.min(var0)))
-            self._rate = np.empty_like(self._var)
-            if self.complex_input:
-                self._mean = np.repeat(mean, s.shape[1], axis=1).astype(np.float32)
+            if not self._initialise(s):
+                return _EMPTY
         var = self._var
+        # padded squared deviations: the padding columns stay 0 and never cross
+        stat = self._stat
+        inner = stat[:, half : width - half]
         if self._mean is not None:
-            d = s - self._mean
-            self._mean += self.alpha * d
-            stat = d * d
+            d = s - self._mean[:, half : width - half]
+            self._mean[:, half : width - half] += self.alpha * d
+            np.multiply(d, d, out=inner)
             # magnitudes below the mean are never echoes: one-sided test
-            d2 = np.where(d > 0, stat, np.float32(0.0))
+            d2 = self._d2
+            np.copyto(d2[:, half : width - half], inner)
+            d2[:, half : width - half][d <= 0] = 0.0
         else:
-            d2 = stat = s * s
-        limit = self._k2 * var
+            np.multiply(s, s, out=inner)
+            d2 = stat
+        limit = np.multiply(self._k2, var, out=self._limit)
         crossing = d2 > limit
-        # crossings are sparse: the peak search and the censoring mask work on their
-        # indices only, with a (k, 2*half+1) neighbourhood gathered around each
-        # flat indices: nonzero of a raveled mask is several times faster than 2-D
+        # crossings are sparse: the peak search and the censoring mask work on their flat
+        # indices only (nonzero of a raveled mask is several times faster than 2-D), with a
+        # (k, 2*half+1) neighbourhood gathered around each; the padding keeps it in its row
         idx = crossing.ravel().nonzero()[0]
-        m = s.shape[1]
-        rows = idx // m
-        cols = idx - rows * m
-        cols_nb = cols[:, None] + self._offsets
-        np.minimum(cols_nb, m - 1, out=cols_nb)
-        np.maximum(cols_nb, 0, out=cols_nb)
-        flat_nb = cols_nb + (rows * m)[:, None]
+        flat_nb = idx[:, None] + self._offsets
         # statistics after the test, clipped, and censored: bins within a pulse width
         # of a crossing update only at the slow rate, so a passing person
         # does not mask itself, while clutter residuals that keep crossing still raise
@@ -201,16 +198,16 @@ class GaussianCfarDetector:
         var += limit
         np.maximum(var, self._floor, out=var)
         if idx.size == 0:
-            return empty
+            return _EMPTY
 
         nb = d2.ravel()[flat_nb]  # (k, 2*half+1)
         # a crossing is a peak when it is the maximum within one pulse width, and the
         # first of equal maxima (a flat top gives one peak, not two a sample apart)
-        centre = nb[:, self._half]
+        centre = nb[:, half]
         is_peak = centre >= np.maximum.reduce(nb, 1)
-        is_peak &= centre > np.maximum.reduce(nb[:, : self._half], 1)
-        rows, cols, nb = rows[is_peak], cols[is_peak], nb[is_peak].astype(np.float64)
-        env = np.sqrt(nb[:, self._half - 1 : self._half + 2])
+        is_peak &= centre > np.maximum.reduce(nb[:, :half], 1)
+        rows, cols = np.divmod(idx[is_peak], width)
+        env = np.sqrt(nb[is_peak, half - 1 : half + 2].astype(np.float64))
         a_m, amp, a_p = env[:, 0], env[:, 1], env[:, 2]
         # parabola through the envelope around the peak: sub-sample delay. The centre is
         # the neighbourhood's maximum, so den <= -|a_m - a_p| and |frac| <= 1/2; a flat
@@ -218,4 +215,29 @@ class GaussianCfarDetector:
         den = a_m - 2.0 * amp + a_p
         frac = (a_m - a_p) / np.minimum(den, -1e-300)
         frac *= 0.5 * self._step
-        return self._ranges[cols] + frac, amp, rows
+        return self._ranges[cols - half] + frac, amp, rows
+
+    def _initialise(self, s: npt.NDArray[np.float32]) -> bool:
+        """Noise statistics from a robust noise-floor estimate of the frame ``s``.
+
+        Returns False for an all-zero frame (the background subtractor's first output),
+        which carries no information; the statistics stay unset.
+        """
+        mean = np.median(s, axis=1, keepdims=True) if self.complex_input else 0.0
+        d0 = s - mean
+        var0 = np.median(d0 * d0, axis=1, keepdims=True) / _CHI2_1_MEDIAN
+        if not np.any(var0 > 0):
+            return False
+        # a silent receiver row (all zeros) gets the floor and stays silent
+        var0 = np.maximum(var0, 1e-6 * float(np.max(var0)))
+        shape = (s.shape[0], self._width)
+        self._var = np.repeat(var0, shape[1], axis=1).astype(np.float32)
+        # an array floor: a ufunc with a scalar operand pays a dtype resolution
+        self._floor = np.full(shape, 1e-6 * float(np.min(var0)), dtype=np.float32)
+        self._rate = np.empty(shape, dtype=np.float32)
+        self._limit = np.empty(shape, dtype=np.float32)
+        self._stat = np.zeros(shape, dtype=np.float32)
+        if self.complex_input:
+            self._mean = np.repeat(mean, shape[1], axis=1).astype(np.float32)
+            self._d2 = np.zeros(shape, dtype=np.float32)
+        return True

@@ -24,9 +24,9 @@ _NCOL = 8
 # innovations across channels are ~1e6 m, so their likelihood is exactly 0 and their
 # components never merge, with no channel masks (float64 keeps 1e-10 m resolution there)
 _CH_SPAN = 1.0e6
-_PAIR_A = np.array([0, 0, 1])  # index pairs giving (dr*dr, dr*dv, dv*dv)
-_PAIR_B = np.array([0, 1, 1])
-_QUAD_SIGN = np.array([1.0, -2.0, 1.0])
+# Kalman covariance update (prr, prv, pvv) -= gain[_GAIN_COLS] * row[_COV_COLS]
+_GAIN_COLS = np.array([0, 0, 1])
+_COV_COLS = np.array([_PRR, _PRV, _PRV])
 ESTIMATE_COLUMNS = ("range_rate_var", "range", "range_rate", "amplitude", "channel")
 """Columns of the estimate rows returned by :meth:`RangeGmPhdFilter.step_detections`."""
 
@@ -265,8 +265,7 @@ class RangeGmPhdFilter:
         """
         if r.size == 0:
             return r, a, r
-        ch = ch.astype(np.float64)
-        key = ch * _CH_SPAN
+        key = ch * _CH_SPAN  # float64 from the integer channels, without a separate cast
         key += r
         new = np.empty(r.size, dtype=bool)
         new[0] = True
@@ -302,16 +301,15 @@ class RangeGmPhdFilter:
             explained = np.add.reduce(lik, 0)
             # keep only the (component, measurement) hypotheses that matter
             jj, mm = (lik > self.prune_threshold).nonzero()
-            hyp = x[jj]
-            inn = innov[jj, mm]
-            sj = s[jj]
-            k_r = hyp[:, _PRR] / sj  # Kalman gain of range and rate
-            k_v = hyp[:, _PRV] / sj
+            # gain (k_r, k_v) = P H^T / s and posterior covariance P - K H P depend on the
+            # component only: computed per component, then gathered per hypothesis
+            gain = x[:, _PRR : _PRV + 1] / s[:, None]
+            post = x.copy()
+            # (prr, prv, pvv) -= (k_r prr, k_r prv, k_v prv)
+            post[:, _PRR : _PVV + 1] -= gain[:, _GAIN_COLS] * x[:, _COV_COLS]
+            hyp = post[jj]
+            hyp[:, _R : _V + 1] += gain[jj] * innov[jj, mm][:, None]
             hyp[:, _W] = lik[jj, mm]
-            hyp[:, _R] += k_r * inn
-            hyp[:, _V] += k_v * inn
-            hyp[:, _PVV] -= k_v * hyp[:, _PRV]
-            hyp[:, _PRR : _PRV + 1] *= (1.0 - k_r)[:, None]
             hyp[:, _AMP] = za[mm]
             x[:, _W] *= 1.0 - self.pd
         # one allocation for survivors, updated hypotheses and births

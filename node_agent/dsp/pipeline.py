@@ -10,6 +10,7 @@ import numpy.typing as npt
 
 from .association import RangePairAssociator, pairing_threshold
 from .background import ExponentialBackgroundSubtractor
+from .band_filter import BandMatchedFilter
 from .cfar import GaussianCfarDetector
 from .ellipse import EllipseIntersector
 from .geometry import RadarParams, SensorGeometry
@@ -84,6 +85,10 @@ class NodeDspConfig:
         GM-PHD pruning weight and squared Mahalanobis merging gate.
     max_components : int
         Cap on GM-PHD components over all receivers.
+    band_filter_min_gain_db : float or None
+        Matched filtering to the declared band (:class:`BandMatchedFilter`) runs when its
+        gain for the radar's sampling reaches this many dB (an oversampled complex
+        baseband gains about 3 dB); None never filters.
     move_tolerance : float
         A new geometry whose antennas moved more than this (m), or turned more than
         ``move_tolerance`` rad, resets the background, the noise statistics and the range
@@ -113,6 +118,7 @@ class NodeDspConfig:
     prune_threshold: float = 1e-3
     merge_threshold: float = 4.0
     max_components: int = 60
+    band_filter_min_gain_db: float | None = 1.0
     move_tolerance: float = 0.01
 
 
@@ -187,6 +193,7 @@ class NodeDsp:
             clutter = cfg.pfa * self._window.size + 0.1
         self._background = ExponentialBackgroundSubtractor(cfg.background_alpha)
         self._cfar: GaussianCfarDetector | None = None
+        self._filter: BandMatchedFilter | None = None
         self._phd = RangeGmPhdFilter(
             n_channels=self.n_rx,
             range_std=cfg.range_std,
@@ -266,6 +273,13 @@ class NodeDsp:
             censor=self.config.noise_censor,
         )
 
+    def _make_filter(self, complex_input: bool) -> BandMatchedFilter | None:
+        min_gain = self.config.band_filter_min_gain_db
+        if min_gain is None:
+            return None
+        band = BandMatchedFilter(self.radar, complex_input=complex_input)
+        return band if band.gain_db >= min_gain else None
+
     def process(
         self, t: float, h: npt.NDArray, geometry: SensorGeometry | None = None
     ) -> DspResult:
@@ -293,7 +307,10 @@ class NodeDsp:
         is_complex = h.dtype.kind == "c"
         if self._cfar is None or self._cfar.complex_input != is_complex:
             self._cfar = self._make_cfar(is_complex)
+            self._filter = self._make_filter(is_complex)
         y = self._background.step(h[:, self._i0 : self._i1])
+        if self._filter is not None:
+            y = self._filter.apply(y)
         # estimate rows (rate variance, range, rate, amplitude, channel)
         est = self._phd.step_detections(t, *self._cfar.detect(y))
         spans = self._phd.channel_spans(est)

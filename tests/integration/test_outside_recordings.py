@@ -38,10 +38,8 @@ FLOOR_COUNT = 0.25
 # Configurations where a goal is not met yet, and why (issue 2 closing note). A listed
 # configuration that misses a goal is reported as xfail with its figures; one not listed fails.
 KNOWN_GAPS = {
-    "hall14x10_4s_3p_band": "people far from the 4 sensors are seen by one sensor at a time, "
-    "and two people passing close share a track for a while",
-    "hall20x12_6s_3to5p_complex": "most misses have no node detection at all: people beyond "
-    "8 m of every sensor are below the node CFAR at this SNR",
+    "hall20x12_6s_3to5p_complex": "most misses have no node detection at all, even after the "
+    "band-matched filter: people beyond 8 m of every sensor are below the node CFAR at this SNR",
     "hall9x7_3s_2p_baseband": "two people who pass close swap or share tracks; the cropped "
     "window (t0 = 17.6 ns) blinds each sensor within 2.6 m",
 }

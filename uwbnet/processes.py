@@ -85,6 +85,7 @@ def run_node(cfg: NodeFile, stop: threading.Event) -> int:
     driver_cls = get_driver_class(cfg.driver.name)
     options = dict(cfg.driver.options)
     if cfg.driver.name == "serial":
+        options.setdefault("node", cfg.node)
         options.setdefault("role", cfg.describe.role)
         options.setdefault("pose", tuple(cfg.describe.pose))
     try:

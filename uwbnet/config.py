@@ -12,7 +12,7 @@ Example node file (see ``deploy/examples/`` for all three)::
     [zenoh]
     mode = "client"
     connect = ["tls/fusion.local:7447"]
-    lease = "1 s"
+    lease = "750 ms"
     [zenoh.tls]
     ca = "/etc/uwbnet/certs/ca.pem"
     cert = "/etc/uwbnet/certs/b1.pem"
@@ -106,7 +106,12 @@ class ZenohModel(_Model):
     listen: list[str] = Field(default_factory=list)
     connect: list[str] = Field(default_factory=list)
     lease: Seconds = Field(
-        default=1.0, description="link lease: a silent peer or cut link is dropped after it"
+        default=0.75,
+        description="link lease: a silent peer or cut link is dropped (and its liveliness "
+        "tokens with it) after this; shorter notices faster but drops flaky wifi links sooner",
+    )
+    reconnect: Seconds = Field(
+        default=1.0, description="longest wait between attempts to re-attach a lost link"
     )
     multicast_scouting: bool = False
     shared_memory: bool = False
@@ -330,6 +335,14 @@ def zenoh_config(z: ZenohModel, net: str) -> zenoh.Config:
             lease_ms=max(1, round(z.lease * 1e3)),
             config_file=z.config_file,
         )
+        # zenoh's default backs off to 4 s between attempts: a node whose link came back would
+        # stay away for up to that long.
+        retry = {
+            "period_init_ms": min(250, round(z.reconnect * 1e3)),
+            "period_max_ms": max(1, round(z.reconnect * 1e3)),
+            "period_increase_factor": 2,
+        }
+        conf.insert_json5("connect/retry", json.dumps(retry))
         if z.tls is not None:
             ca, cert, key = (_check_file(w, getattr(z.tls, w)) for w in ("ca", "cert", "key"))
             tls = {

@@ -26,7 +26,7 @@ EXAMPLES = Path(__file__).parents[3] / "deploy" / "examples"
 )
 def test_shipped_examples_validate(model, name):
     cfg = load_config(model, EXAMPLES / f"{name}.toml", env={})
-    assert cfg.zenoh.tls is not None and cfg.zenoh.lease == 1.0
+    assert cfg.zenoh.tls is not None and cfg.zenoh.lease == 0.75
 
 
 def _load(tmp_path, text, model=NodeFile, **kw):  # type: ignore[no-untyped-def]

@@ -98,3 +98,33 @@ def test_cli_reports_a_bad_config_in_one_line(tmp_path):
         [exe, "node", "--config", str(tmp_path / "missing.toml")], capture_output=True, text=True
     )
     assert r.returncode == 1 and "cannot read" in r.stderr
+
+
+@pytest.mark.parametrize("name", ["peer-one-host", "client-to-router", "router"])
+def test_shipped_zenoh_configs_are_valid_zenoh_configs(name):
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config.from_file(str(EXAMPLES.parent / "zenoh" / f"{name}.json5"))
+    assert json.loads(conf.get_json("mode")) == name.split("-")[0]
+
+
+def test_shipped_router_acl_matches_the_generated_one():
+    import json
+
+    import zenoh
+
+    from uwbnet.config import AccessModel, access_control
+
+    conf = zenoh.Config.from_file(str(EXAMPLES.parent / "zenoh" / "router.json5"))
+    shipped = json.loads(conf.get_json("access_control"))
+    generated = access_control(
+        AccessModel(members=["fusion", "hostA", "hostB", "recorder"], viewers=["viewer"]), "NET"
+    )
+    assert [r["key_exprs"] for r in shipped["rules"]] == [
+        r["key_exprs"] for r in generated["rules"]
+    ]
+    assert [s["cert_common_names"] for s in shipped["subjects"]] == [
+        s["cert_common_names"] for s in generated["subjects"]
+    ]

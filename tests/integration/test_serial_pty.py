@@ -115,3 +115,29 @@ def test_node_agent_on_serial_driver_joins_the_fusion_center(emulator, hub_endpo
             time.sleep(0.05)
         assert "s1" in fusion.core.nodes
         assert agent.counters["driver_errors"] == 0
+
+
+def test_uwbnet_node_process_runs_the_serial_driver_from_its_toml(
+    emulator, hub_endpoint, procs, tmp_path
+):
+    cfg = tmp_path / "node.toml"
+    cfg.write_text(
+        'net = "ser"\nnode = "s9"\npublish_ir = false\n[describe]\npose = [1.0, 2.0, 1.0, 0.0]\n'
+        f'[driver]\nname = "serial"\n[driver.options]\nport = "{emulator.port}"\ntimeout = 0.3\n'
+        f'[zenoh]\nmode = "client"\nconnect = ["{hub_endpoint}"]\n'
+    )
+    with zenoh.open(session_config(mode="router", listen=[hub_endpoint])) as fs:
+        fusion = FusionService(fs, FusionConfig(net="ser"))
+        fusion.start()
+        try:
+            node = procs.uwbnet("-v", "node", "--config", str(cfg), name="node")
+            deadline = time.monotonic() + 20.0
+            while fusion.health.get("s9") is None or fusion.health["s9"].detections < 20:
+                assert node.poll() is None, procs.log("node")
+                assert time.monotonic() < deadline, procs.log("node")
+                time.sleep(0.05)
+            assert fusion.core.nodes["s9"].pose == (1.0, 2.0, 1.0, 0.0)
+            assert procs.stop(node) == 0
+            assert "Traceback" not in procs.log("node")
+        finally:
+            fusion.stop()

@@ -254,9 +254,15 @@ def load_config(
 
 
 def _check_file(what: str, path: str) -> str:
+    """The path of a PEM file, checked now: zenoh reports a bad certificate only as a link
+    that cannot be established, which a client would retry forever."""
     p = Path(path).expanduser()
-    if not p.is_file():
-        raise ConfigError(f"zenoh.tls.{what}: no such file: {path}")
+    try:
+        head = p.read_bytes()[:4096]
+    except OSError as exc:
+        raise ConfigError(f"zenoh.tls.{what}: cannot read {path}: {exc.strerror}") from None
+    if b"-----BEGIN " not in head:
+        raise ConfigError(f"zenoh.tls.{what}: {path} is not a PEM file")
     return str(p)
 
 
@@ -320,6 +326,8 @@ def zenoh_config(z: ZenohModel, net: str) -> zenoh.Config:
         plain = [e for e in [*z.listen, *z.connect] if not e.startswith("tls/")]
         if plain:
             raise ConfigError(f"zenoh: tls is configured but endpoint {plain[0]!r} is not tls/...")
+    if z.tls is not None and z.mode != "client" and not z.listen:
+        raise ConfigError(f"zenoh.listen: a {z.mode} with tls needs a tls/... listen endpoint")
     if z.access is not None and z.tls is None:
         raise ConfigError("zenoh.access: access control by certificate needs zenoh.tls")
     listen = z.listen
@@ -358,6 +366,8 @@ def zenoh_config(z: ZenohModel, net: str) -> zenoh.Config:
             conf.insert_json5("transport/link/protocols", json.dumps(["tls"]))
         if z.access is not None:
             conf.insert_json5("access_control", json.dumps(access_control(z.access, net)))
+    except ConfigError:
+        raise
     except zenoh.ZError as exc:
         raise ConfigError(f"zenoh: {str(exc).splitlines()[0]}") from None
     except ValueError as exc:

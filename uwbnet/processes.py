@@ -14,6 +14,7 @@ import json
 import logging
 import math
 import os
+import re
 import signal
 import threading
 import time
@@ -26,7 +27,14 @@ import zenoh
 from protocol import ProtocolError, Tracks, keys
 from protocol.recording import read_recording
 from protocol.transport import FifoChannel
-from uwbnet.config import FusionFile, NodeFile, RecordFile, SimNodeFile, zenoh_config
+from uwbnet.config import (
+    ConfigError,
+    FusionFile,
+    NodeFile,
+    RecordFile,
+    SimNodeFile,
+    zenoh_config,
+)
 
 log = logging.getLogger(__name__)
 
@@ -53,14 +61,23 @@ def stop_on_signals() -> Iterator[threading.Event]:
 def open_session(
     make_config: Callable[[], zenoh.Config], stop: threading.Event, what: str
 ) -> zenoh.Session | None:
-    """Open a zenoh session, retrying every second until it opens; None if stopped first."""
+    """Open a zenoh session; None if stopped first.
+
+    A router that cannot be reached yet is waited for (retried every second); any other
+    failure (a listening endpoint that cannot be opened, a bad TLS setup) is a
+    :class:`ConfigError`: retrying would not fix it.
+    """
     warned = False
     while not stop.is_set():
         try:
             return zenoh.open(make_config())
         except zenoh.ZError as exc:
+            # zenoh appends " at /path/to/source.rs:line." to its messages.
+            detail = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", str(exc).splitlines()[0]).strip()
+            if "Unable to connect" not in detail:
+                raise ConfigError(f"{what}: zenoh: {detail}") from None
             if not warned:
-                log.warning("%s: cannot join the network yet (%s); retrying", what, exc)
+                log.warning("%s: cannot join the network yet (%s); retrying", what, detail)
                 warned = True
             stop.wait(1.0)
     return None
@@ -151,8 +168,6 @@ def run_simnode(cfg: SimNodeFile, stop: threading.Event) -> int:
     nodes = cfg.nodes or network.node_ids
     unknown = sorted(set(nodes) - set(network.node_ids))
     if unknown:
-        from uwbnet.config import ConfigError
-
         raise ConfigError(f"nodes: {unknown[0]!r} is not a node of scenario {cfg.scenario}")
     session = open_session(lambda: zenoh_config(cfg.zenoh, cfg.net), stop, "simnode")
     if session is None:
@@ -223,17 +238,13 @@ def _write_tracks(f: Any, inbox: FifoChannel[bytes]) -> None:
     f.flush()
 
 
-def run_fusion(
-    cfg: FusionFile, stop: threading.Event, *, ready: Callable[[], None] | None = None
-) -> int:
+def run_fusion(cfg: FusionFile, stop: threading.Event) -> int:
     """The fusion center (the network's router in ``router`` mode)."""
     from fusion_center.service import FusionConfig, FusionService
 
     log.info("fusion config: %s", cfg.model_dump_json())
     jsonl = Path(cfg.tracks_jsonl) if cfg.tracks_jsonl else None
     if jsonl is not None and not jsonl.parent.exists():
-        from uwbnet.config import ConfigError
-
         raise ConfigError(f"tracks_jsonl: directory does not exist: {jsonl.parent}")
     session = open_session(lambda: zenoh_config(cfg.zenoh, cfg.net), stop, "fusion")
     if session is None:
@@ -261,8 +272,6 @@ def run_fusion(
             stack.callback(sub.undeclare)
         fusion.start()
         stack.callback(fusion.stop)
-        if ready is not None:
-            ready()
         while not stop.wait(0.2):
             if jsonl is not None:
                 _write_tracks(f, inbox)

@@ -201,5 +201,6 @@ def test_sigkilled_recorder_leaves_a_recoverable_partial_file(procs, tmp_path, h
     report = json.loads(r.stdout)
     msgs = list(read_recording(fixed))
     assert report["messages"] == len(msgs) > 100
-    # The recorder flushes once a second: at most about the last second is lost.
-    assert killed_at - max(m.t for m in msgs) < 1.6
+    # The recorder flushes once a second: at most about the last second is lost (measured
+    # 0.25-1 s); the slack covers a recorder thread starved on a loaded CI machine.
+    assert killed_at - max(m.t for m in msgs) < 2.5

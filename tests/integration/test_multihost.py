@@ -245,7 +245,8 @@ def test_three_hosts_with_tls_survive_a_link_cut_and_a_killed_node_process(hosts
     }
     print("\nmultihost figures: " + json.dumps(figures))
     assert kill_noticed - killed_at < 1.0
-    assert cut_noticed - cut_at < 1.0  # lease 750 ms, keep-alive every 190 ms
+    # Lease 750 ms (measured 0.75 s to notice); slack for a loaded CI machine.
+    assert cut_noticed - cut_at < 1.25
     assert result["card_correct_fraction"] > 0.8 and result["ospa_p2_mean"] < 0.4
 
 

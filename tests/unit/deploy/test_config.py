@@ -79,7 +79,7 @@ def test_tls_refuses_plain_endpoints_and_missing_files(tmp_path):
     tls = {"ca": str(tmp_path / "ca.pem"), "cert": "x.pem", "key": "x.key"}
     with pytest.raises(ConfigError, match="not tls/"):
         zenoh_config(ZenohModel(connect=["tcp/1.2.3.4:7447"], tls=tls), "n")
-    with pytest.raises(ConfigError, match=r"zenoh.tls.ca: no such file"):
+    with pytest.raises(ConfigError, match=r"^zenoh\.tls\.ca: cannot read .*ca\.pem: No such file"):
         zenoh_config(ZenohModel(mode="client", connect=["tls/1.2.3.4:7447"], tls=tls), "n")
     with pytest.raises(ConfigError, match=r"needs zenoh\.tls"):
         zenoh_config(ZenohModel(access={"members": ["a"]}), "n")
@@ -128,3 +128,31 @@ def test_shipped_router_acl_matches_the_generated_one():
     assert [s["cert_common_names"] for s in shipped["subjects"]] == [
         s["cert_common_names"] for s in generated["subjects"]
     ]
+
+
+def test_tls_files_must_be_pem_and_a_tls_router_must_listen_on_tls(tmp_path):
+    junk = tmp_path / "junk.pem"
+    junk.write_text("not a certificate\n")
+    tls = {"ca": str(junk), "cert": str(junk), "key": str(junk)}
+    with pytest.raises(ConfigError, match=r"zenoh\.tls\.ca: .* is not a PEM file"):
+        zenoh_config(ZenohModel(mode="client", connect=["tls/1.2.3.4:7447"], tls=tls), "n")
+    with pytest.raises(ConfigError, match=r"needs a tls/\.\.\. listen endpoint"):
+        zenoh_config(ZenohModel(mode="router", tls=tls), "n")
+
+
+def test_a_router_that_cannot_listen_exits_with_one_line(tmp_path):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        p = tmp_path / "f.toml"
+        p.write_text(f'[zenoh]\nmode = "router"\nlisten = ["tcp/127.0.0.1:{port}"]\n')
+        exe = str(Path(sys.executable).with_name("uwbnet"))
+        r = subprocess.run(
+            [exe, "fusion", "--config", str(p)], capture_output=True, text=True, timeout=60
+        )
+    assert r.returncode == 1
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("uwbnet: error: fusion: zenoh:"), r.stderr

@@ -201,6 +201,13 @@ def test_sigkilled_recorder_leaves_a_recoverable_partial_file(procs, tmp_path, h
     report = json.loads(r.stdout)
     msgs = list(read_recording(fixed))
     assert report["messages"] == len(msgs) > 100
+    # The recorder joined after the nodes announced themselves: it asked their queryables,
+    # and wrote each node_info before anything else of that node.
+    first: dict[str, str] = {}
+    for m in msgs:
+        if "/node/" in m.topic:
+            first.setdefault(m.topic.split("/")[3], m.kind or "")
+    assert first == dict.fromkeys(("bat1", "bat2", "bat3"), "node_info")
     # The recorder flushes once a second: at most about the last second is lost (measured
     # 0.25-1 s); the slack covers a recorder thread starved on a loaded CI machine.
     assert killed_at - max(m.t for m in msgs) < 2.5

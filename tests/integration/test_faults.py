@@ -137,6 +137,9 @@ def test_a_stuck_consumer_never_slows_acquisition(hub_endpoint, network):
         threading.Event().wait(4.0)
         rate = (node.agent.counters["acquired"] - a0) / (time.monotonic() - t0)
         release.set()
+        # What the stuck link held up is reported, not hidden.
+        status = fusion.snapshot()[1]["bat3"].last_status
+        assert status is not None and "queue_dropped" in status.extra
         # One transmitter, 50 frames per second.
         assert rate > 40.0, f"acquisition slowed to {rate:.1f} Hz by a stuck consumer"
         print(f"\nacquisition with a stuck consumer: {rate:.1f} Hz")

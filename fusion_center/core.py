@@ -3,8 +3,9 @@
 Shared by the live service and offline ``uwbnet track``. Detections are grouped by TDMA frame;
 a frame is handed to the tracker as soon as every expected sensor has reported for it, once a
 detection ``frame_lag`` frames later shows it is over, or on :meth:`FusionCore.flush`.
-Duplicates (same source and ``seq``) and detections of frames already processed are counted
-and dropped: the tracker never goes back in time.
+Duplicates and reordered messages (a ``seq`` not above the source's last, with a ``t`` not
+after it) and detections of frames already processed are counted and dropped: the tracker never
+goes back in time. A node that restarts (``seq`` from 0 again, later ``t``) is accepted.
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ class FusionCore:
         self._pending: dict[int, list[SensorScan]] = defaultdict(list)
         self._done_frame = -(2**62)
         self._last_t = -math.inf
-        self._seen: dict[str, int] = {}
+        self._seen: dict[str, tuple[int, float]] = {}
         self._views: dict[tuple[str, str, tuple[str, ...]], tuple[np.ndarray, float, float]] = {}
         #: Sensors expected to report in every frame (the TDMA schedule's); empty: unknown.
         self.expected: frozenset[str] = frozenset()
@@ -96,10 +97,13 @@ class FusionCore:
     def add_detections(self, det: Detections) -> list[TrackerOutput]:
         """Queue one node's detections; return the tracker outputs of frames now complete."""
         last = self._seen.get(det.src)
-        if last is not None and det.seq == last:
+        if last is not None and det.seq <= last[0] and det.t <= last[1]:
+            # Same or older sequence number and not newer: a duplicate or a reordered
+            # message. A smaller seq with a newer t is a restarted node (its seq began at 0).
             self.counters.duplicates += 1
             return []
-        self._seen[det.src] = det.seq
+        if last is None or det.seq > last[0] or det.t > last[1]:
+            self._seen[det.src] = (det.seq, det.t)
         if det.src not in self.nodes:
             self.counters.unknown_node += 1
             return []

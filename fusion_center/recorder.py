@@ -1,15 +1,17 @@
 """Record a live network to MCAP (PROTOCOL.md, "Recordings").
 
 Subscribes to ``uwbnet/{net}/**`` and writes every payload unchanged. A node's ``node_info`` is
-written before its first ``ir``: when the recorder joined after the node announced itself, the
-description is fetched from the node's queryable first.
+written before its first ``ir`` (or detections, status): when the recorder joined after the node
+announced itself, the description is fetched from the node's queryable first.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import threading
+import time
 from typing import Any
 
 import zenoh
@@ -29,16 +31,28 @@ class NetworkRecorder:
     ``start()``/``stop()`` are idempotent; ``stop()`` drains the queue and closes the file.
     Messages that are not valid uwbnet messages are counted in ``rejected``; messages the
     queue could not hold are counted in ``dropped`` (the queue is sized for seconds of ``ir``).
+
+    Crash safety: every ``flush_period`` seconds the chunk in progress is ended and handed to
+    the OS, so a recorder killed by SIGKILL leaves ``NAME.partial`` readable up to its last
+    flush (at most ``flush_period`` s lost); ``uwbnet recover`` turns it into a complete MCAP.
     """
 
-    def __init__(self, session: zenoh.Session, net: str, path: str | os.PathLike[str]) -> None:
-        self.session, self.net = session, net
+    def __init__(
+        self,
+        session: zenoh.Session,
+        net: str,
+        path: str | os.PathLike[str],
+        *,
+        flush_period: float = 1.0,
+    ) -> None:
+        self.session, self.net, self.flush_period = session, net, flush_period
         self.writer = RecordingWriter(path)
         self._inbox: FifoChannel[tuple[str, bytes]] = FifoChannel(20000)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._sub: Any = None
         self._has_info: set[str] = set()
+        self._asked: dict[str, float] = {}
         self.rejected = 0
 
     @property
@@ -70,10 +84,14 @@ class NetworkRecorder:
         self.writer.close()
 
     def _run(self) -> None:
+        last_flush = time.monotonic()
         while not self._stop.is_set():
             item = self._inbox.get(timeout=0.1)
             if item is not None:
                 self._write(*item, fetch=True)
+            if time.monotonic() - last_flush >= self.flush_period:
+                last_flush = time.monotonic()
+                self.writer.flush()
 
     def _write(self, key: str, payload: bytes, *, fetch: bool) -> None:
         try:
@@ -89,10 +107,14 @@ class NetworkRecorder:
             return
         if parsed.kind == "node_info" and parsed.node:
             self._has_info.add(parsed.node)
-        elif parsed.kind == "ir" and parsed.node and parsed.node not in self._has_info:
-            if fetch:
+        elif parsed.node and parsed.node not in self._has_info:
+            # A node first seen by its ir, detections or status: its description comes first
+            # (asked at most once a second, the query blocks this worker for up to 1 s).
+            now = time.monotonic()
+            if fetch and now - self._asked.get(parsed.node, -math.inf) >= 1.0:
+                self._asked[parsed.node] = now
                 self._fetch_info(parsed.node)
-            if parsed.node not in self._has_info:
+            if parsed.kind == "ir" and parsed.node not in self._has_info:
                 self.rejected += 1
                 return
         self.writer.write(key, parsed.kind, payload, float(t))

@@ -21,7 +21,7 @@ from node_agent.drivers.base import DriverError, RadarDriver
 from node_agent.dsp.pipeline import NodeDspConfig
 from node_agent.tdma import next_slot
 from protocol import Ir, NodeInfo, ProtocolError, Status, TdmaSchedule, keys
-from protocol.transport import FifoChannel, stop_worker
+from protocol.transport import FifoChannel, RingChannel, stop_worker
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +36,8 @@ class AgentConfig:
     net : network name of the key expressions.
     publish_ir : publish raw impulse responses on ``.../ir`` (for imaging and recording).
     status_period : seconds between ``status`` messages.
+    outbox : messages queued for the publisher thread before the oldest are dropped
+        (100: one second of ``ir`` and ``detections`` at 50 Hz).
     dsp : node DSP configuration.
     """
 
@@ -43,6 +45,7 @@ class AgentConfig:
     net: str = "demo"
     publish_ir: bool = True
     status_period: float = 1.0
+    outbox: int = 100
     dsp: NodeDspConfig = dataclasses.field(default_factory=NodeDspConfig)
 
 
@@ -71,6 +74,11 @@ class NodeAgent:
         )
         self.core = NodeCore(self.info, config.dsp)
         self._schedule_in: FifoChannel[bytes] = FifoChannel(16)
+        # Acquisition never waits for the network: messages go through a bounded queue to a
+        # publisher thread; when a stuck link or consumer backs it up, the oldest are dropped
+        # and counted (``status.dropped``, ``extra.queue_dropped``).
+        self._outbox: RingChannel[tuple[Any, bytes]] = RingChannel(config.outbox)
+        self._pub_thread: threading.Thread | None = None
         self._schedule: TdmaSchedule | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -114,13 +122,34 @@ class NodeAgent:
         s.put(info_key, self._info_bytes)
         self._started_at = time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"agent-{node}", daemon=True)
+        self._pub_thread = threading.Thread(
+            target=self._publish_loop, name=f"agent-{node}-pub", daemon=True
+        )
+        self._pub_thread.start()
         self._thread.start()
         log.info("node agent %s started on net %s (tx %s)", node, net, self.tx)
 
     def stop(self) -> None:
-        """Stop the worker and undeclare everything. Idempotent."""
+        """Stop the workers and undeclare everything. Idempotent."""
+        self._stop.set()
+        if self._pub_thread is not None:
+            self._pub_thread.join(timeout=5.0)
+            self._pub_thread = None
         stop_worker(self._stop, self._thread, self._decl)
         self._thread = None
+
+    def _publish_loop(self) -> None:
+        while not self._stop.is_set():
+            item = self._outbox.get(timeout=0.1)
+            if item is None:
+                continue
+            publisher, payload = item
+            try:
+                publisher.put(payload)
+            except zenoh.ZError as exc:
+                log.debug("publish failed: %s", exc)
+                continue
+            self.counters["published"] += 1
 
     def _on_info_query(self, query: zenoh.Query) -> None:
         # Reply on our own concrete key, not on the query's wildcard.
@@ -202,8 +231,7 @@ class NodeAgent:
             pose=acq.pose,
         )
         if self.config.publish_ir:
-            self._pub_ir.put(ir.to_wire())
-            self.counters["published"] += 1
+            self._outbox.put((self._pub_ir, ir.to_wire()))
         try:
             result = self.core.process(ir)
         except (NodeConfigError, ValueError) as exc:
@@ -211,8 +239,7 @@ class NodeAgent:
             log.warning("node %s: processing failed: %s", self.config.node, exc)
             return
         det = detections_message(ir, result, src=self.config.node, seq=self._next("det"))
-        self._pub_det.put(det.to_wire())
-        self.counters["published"] += 1
+        self._outbox.put((self._pub_det, det.to_wire()))
 
     def _publish_status(self, cpu: float) -> None:
         c = self.counters
@@ -223,11 +250,16 @@ class NodeAgent:
             uptime=time.monotonic() - self._started_at,
             acquired=c["acquired"],
             published=c["published"],
-            dropped=c["dropped"],
+            dropped=c["dropped"] + self._outbox.dropped,
             late_slots=c["late_slots"],
             decode_errors=c["decode_errors"],
             cpu=cpu,
-            extra={"dsp_errors": c["dsp_errors"], "driver_errors": c["driver_errors"]},
+            extra={
+                "dsp_errors": c["dsp_errors"],
+                "driver_errors": c["driver_errors"],
+                "queue_dropped": self._outbox.dropped,
+                "missed_frames": c["dropped"],
+            },
         )
         self._pub_status.put(status.to_wire())
 

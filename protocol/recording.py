@@ -75,11 +75,14 @@ class RecordingWriter:
             self._channels[topic] = channel
         return channel
 
-    def write(self, topic: str, kind: str, payload: bytes, t: float) -> None:
-        """Append one payload (bytes as on the wire) at network time ``t`` (s)."""
+    def write(
+        self, topic: str, kind: str, payload: bytes, t: float, *, log_time: int | None = None
+    ) -> None:
+        """Append one payload (bytes as on the wire) at network time ``t`` (s), or exactly at
+        ``log_time`` (ns) when given (copying a recording)."""
         if self._file is None:
             raise RecordingError(f"{self.path}: recording already closed")
-        ns = seconds_to_ns(t)
+        ns = seconds_to_ns(t) if log_time is None else log_time
         self._writer.add_message(
             channel_id=self._channel(topic, kind), log_time=ns, publish_time=ns, data=payload
         )
@@ -90,6 +93,16 @@ class RecordingWriter:
         payload = msg.to_wire()
         self.write(topic, msg.KIND, payload, msg.t)
         return payload
+
+    def flush(self) -> None:
+        """End the chunk in progress and hand everything written so far to the OS.
+
+        What was flushed survives a SIGKILL of this process (the kernel holds it); the file is
+        still ``.partial`` and needs :func:`recover_recording` to become a complete MCAP.
+        """
+        if self._file is None:
+            return
+        self._writer.flush()
 
     def close(self) -> None:
         """Finish the MCAP, flush it to disk and move it to its final name. Idempotent."""
@@ -175,3 +188,33 @@ def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:
         except Exception as exc:  # mcap raises struct, zlib, EOF and its own errors alike
             detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise RecordingError(f"{path}: corrupt or truncated MCAP ({detail})") from None
+
+
+def recover_recording(
+    partial: str | os.PathLike[str], out: str | os.PathLike[str]
+) -> tuple[int, str | None]:
+    """Copy the readable messages of an interrupted recording into a complete MCAP.
+
+    A recorder killed without a chance to close (SIGKILL, power cut) leaves ``NAME.partial``:
+    the MCAP header and every chunk it flushed, then perhaps a torn chunk. Messages up to the
+    damage are rewritten, unchanged, to ``out``.
+
+    Returns
+    -------
+    count : messages recovered.
+    damage : the one-line reason reading stopped, or None if the input was complete.
+    """
+    damage = None
+    count = 0
+    with RecordingWriter(out, library="uwbnet recover") as writer:
+        try:
+            for rec in read_recording(partial):
+                writer.write(
+                    rec.topic, rec.kind or "unknown", rec.payload, rec.t, log_time=rec.log_time
+                )
+                count += 1
+        except RecordingError as exc:
+            if count == 0 and "cannot read" in str(exc):
+                raise
+            damage = str(exc)
+    return count, damage

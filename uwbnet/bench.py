@@ -93,8 +93,53 @@ def bench_fusion(seed: int = 0) -> dict[str, Any]:
     return {"bench": "fusion", **run(seed=seed), **_machine()}
 
 
+def bench_fuzz(seed: int = 0) -> dict[str, Any]:
+    """Fuzz the protocol decoder and the serial frame parser with atheris (``uwbnet.fuzz``),
+    ``UWBNET_FUZZ_RUNS`` inputs each (default 500000): inputs run, crashes, hangs."""
+    import os
+    import re
+    import subprocess
+    import sys
+    import time
+
+    runs = int(os.environ.get("UWBNET_FUZZ_RUNS", "500000"))
+    out: dict[str, Any] = {"bench": "fuzz", "runs_requested_each": runs}
+    total = 0
+    for target in ("decoder", "serial"):
+        t0 = time.perf_counter()
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "uwbnet.fuzz",
+                target,
+                "--runs",
+                str(runs),
+                "--seed",
+                str(seed + 1),
+            ],
+            capture_output=True,
+            text=True,
+        )
+        if "No module named 'atheris'" in r.stderr:
+            raise RuntimeError("bench fuzz needs atheris: pip install 'uwbnet[fuzz]'")
+        done = re.findall(r"Done (\d+) runs", r.stderr)
+        n = int(done[-1]) if done else 0
+        total += n
+        out[target] = {
+            "inputs": n,
+            "crashes": int(r.returncode != 0 and "timeout" not in r.stderr.lower()),
+            "hangs": int("ERROR: libFuzzer: timeout" in r.stderr),
+            "exit_status": r.returncode,
+            "seconds": round(time.perf_counter() - t0, 1),
+        }
+    out["inputs_total"] = total
+    return {**out, **_machine()}
+
+
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "dsp": bench_dsp,
+    "fuzz": bench_fuzz,
     "fusion": bench_fusion,
     "sim": bench_sim,
 }

@@ -152,6 +152,98 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _zenoh_overrides(args: argparse.Namespace) -> dict[tuple[str, ...], Any]:
+    return {
+        ("net",): args.net,
+        ("zenoh", "connect"): args.connect,
+        ("zenoh", "listen"): args.listen,
+        ("zenoh", "mode"): args.mode,
+    }
+
+
+def cmd_node(args: argparse.Namespace) -> int:
+    from uwbnet.config import NodeFile, load_config
+    from uwbnet.processes import run_node, stop_on_signals
+
+    cfg = load_config(NodeFile, args.config, _zenoh_overrides(args))
+    with stop_on_signals() as stop:
+        return run_node(cfg, stop)
+
+
+def cmd_simnode(args: argparse.Namespace) -> int:
+    from uwbnet.config import SimNodeFile, load_config
+    from uwbnet.processes import run_simnode, stop_on_signals
+
+    cfg = load_config(SimNodeFile, args.config, _zenoh_overrides(args))
+    with stop_on_signals() as stop:
+        return run_simnode(cfg, stop)
+
+
+def cmd_fusion(args: argparse.Namespace) -> int:
+    from uwbnet.config import FusionFile, load_config
+    from uwbnet.processes import run_fusion, stop_on_signals
+
+    overrides = _zenoh_overrides(args)
+    overrides[("tracks_jsonl",)] = args.tracks_jsonl
+    cfg = load_config(FusionFile, args.config, overrides)
+    with stop_on_signals() as stop:
+        return run_fusion(cfg, stop)
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from uwbnet.config import RecordFile, load_config
+    from uwbnet.processes import run_record, stop_on_signals
+
+    cfg = load_config(RecordFile, args.config, _zenoh_overrides(args))
+    out = _out_path(args.out)
+    with stop_on_signals() as stop:
+        result = run_record(cfg, out, stop, args.duration or math.inf)
+    print(json.dumps(result))
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from uwbnet.config import RecordFile, load_config
+    from uwbnet.processes import run_replay, stop_on_signals
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    cfg = load_config(RecordFile, args.config, _zenoh_overrides(args))
+    with stop_on_signals() as stop:
+        result = run_replay(cfg, src, stop, args.rate)
+    print(json.dumps(result))
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from protocol.recording import recover_recording
+
+    src = Path(args.partial)
+    if not src.is_file():
+        raise CliError(f"no such file: {src}")
+    out = _out_path(args.out)
+    count, damage = recover_recording(src, out)
+    print(json.dumps({"out": str(out), "messages": count, "damage": damage}))
+    return 0
+
+
+def _rate(value: str) -> float:
+    if value in ("inf", "max"):
+        return math.inf
+    return _positive(value)
+
+
+def _add_zenoh_args(p: argparse.ArgumentParser, *, config_required: bool) -> None:
+    p.add_argument(
+        "--config", required=config_required, help="TOML configuration (deploy/examples/)"
+    )
+    p.add_argument("--net", help="network name (overrides the file and UWBNET_NET)")
+    p.add_argument("--connect", action="append", help="zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--listen", action="append", help="zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--mode", choices=("peer", "client", "router"), help="zenoh mode")
+
+
 # --- parser ----------------------------------------------------------------------------------
 
 
@@ -201,8 +293,40 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--cutoff", type=_positive, default=1.0, help="OSPA/GOSPA cut-off c, m")
     e.set_defaults(func=cmd_eval)
 
+    n = sub.add_parser("node", help="a node agent on a radar driver (field deployment)")
+    _add_zenoh_args(n, config_required=True)
+    n.set_defaults(func=cmd_node)
+
+    sn = sub.add_parser("simnode", help="simulated nodes of a scenario with their node agents")
+    _add_zenoh_args(sn, config_required=True)
+    sn.set_defaults(func=cmd_simnode)
+
+    f = sub.add_parser("fusion", help="the fusion center (and router) of a deployment")
+    _add_zenoh_args(f, config_required=True)
+    f.add_argument("--tracks-jsonl", help="also write every fusion update to this JSONL file")
+    f.set_defaults(func=cmd_fusion)
+
+    r = sub.add_parser("record", help="record the network to MCAP until SIGINT/SIGTERM")
+    _add_zenoh_args(r, config_required=False)
+    r.add_argument("--out", required=True, help="output MCAP file")
+    r.add_argument("--duration", type=_positive, help="seconds to record (default: until stopped)")
+    r.set_defaults(func=cmd_record)
+
+    rp = sub.add_parser("replay", help="republish a recording's payloads unchanged")
+    rp.add_argument("recording", help="input MCAP recording")
+    _add_zenoh_args(rp, config_required=False)
+    rp.add_argument(
+        "--rate", type=_rate, default=1.0, help="speed-up over real time; 'inf' as fast as possible"
+    )
+    rp.set_defaults(func=cmd_replay)
+
+    rc = sub.add_parser("recover", help="make a complete MCAP of a killed recorder's .partial")
+    rc.add_argument("partial", help="the NAME.mcap.partial a killed recorder left")
+    rc.add_argument("--out", required=True, help="output MCAP file")
+    rc.set_defaults(func=cmd_recover)
+
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument("name", choices=("dsp", "fusion", "sim"))
+    b.add_argument("name", choices=("dsp", "fusion", "fuzz", "sim"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
@@ -215,8 +339,17 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from node_agent.drivers.base import DriverError
     from protocol import ProtocolError
     from sim_nodes.scene import ScenarioError
+    from uwbnet.config import ConfigError
 
-    return (CliError, ProtocolError, ScenarioError, TrackingError, DriverError, OSError)
+    return (
+        CliError,
+        ConfigError,
+        ProtocolError,
+        ScenarioError,
+        TrackingError,
+        DriverError,
+        OSError,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -75,7 +75,7 @@ class DemoScore:
         }
 
 
-def _truth_loop(
+def truth_loop(
     session: zenoh.Session, network: SimNetwork, net: str, start: float, stop: threading.Event
 ) -> None:
     """Publish the simulator's truth at 50 Hz (simulation only, PROTOCOL.md ``truth``)."""
@@ -109,7 +109,7 @@ def _run_nodes(
         with contextlib.ExitStack() as stack:
             sim_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
             truth_thread = threading.Thread(
-                target=_truth_loop, args=(sim_session, network, net, start, truth_stop)
+                target=truth_loop, args=(sim_session, network, net, start, truth_stop)
             )
             truth_thread.start()
             stack.callback(truth_thread.join, 2.0)

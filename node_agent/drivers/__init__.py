@@ -15,6 +15,7 @@ from node_agent.drivers.base import Acquisition, DriverError, RadarDriver
 #: name -> (module, class). The simulated driver lives in sim_nodes (it uses the simulator).
 BACKENDS: dict[str, tuple[str, str]] = {
     "sim": ("sim_nodes.driver", "SimulatedDriver"),
+    "serial": ("node_agent.drivers.serial", "SerialDriver"),
 }
 
 

@@ -109,6 +109,7 @@ def test_nodes_and_fusion_exchange_schedule_detections_tracks_status(hub_endpoin
         assert agent.counters["dsp_errors"] == 0
 
 
+@pytest.mark.faults
 def test_fusion_notices_a_lost_node_within_one_second_and_keeps_tracking(hub_endpoint, network):
     nodes = sorted(network.node_infos())[:3]
     with running_network(hub_endpoint, network, nodes) as (fusion, agents, _observer):

@@ -105,7 +105,9 @@ def link_figures(scenario_name: str, seed: int, stop: int, plot: Path | None) ->
         tx, rx, _ = robot_arrays(sc, stop)
         tx1 = AntennaArray(position=tx.position, yaw=tx.yaw, pattern=tx.pattern)
         rx1 = AntennaArray(position=rx.position[:1], yaw=rx.yaw[:1], pattern=rx.pattern)
-        horn = tx.pattern
+        # The rotating directive antenna of the angular PDP: the robot's horn, or the default
+        # 60-degree horn if the robot is omnidirectional.
+        horn = tx.pattern if isinstance(tx.pattern, HornPattern) else HornPattern()
     else:
         if not 0 <= stop < len(sc.nodes):
             raise ValueError(f"--stop (node number) must be in 0..{len(sc.nodes) - 1}")

@@ -252,7 +252,7 @@ def _back_trace(
     """
     n_seq, k = seq.shape
     n_rx = rx.shape[0]
-    out_s, out_r, out_p = [], [], []
+    out_s, out_r, out_p = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, k, 3))]
     step = max(1, _CHUNK // max(n_rx, 1))
     for c0 in range(0, n_seq, step):
         s_idx = np.repeat(np.arange(c0, min(c0 + step, n_seq)), n_rx)

@@ -253,16 +253,35 @@ def _back_trace(
     n_seq, k = seq.shape
     n_rx = rx.shape[0]
     out_s, out_r, out_p = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, k, 3))]
-    step = max(1, _CHUNK // max(n_rx, 1))
+    # The last bounce is tested for every (sequence, receiver) pair, so it is done on scalar
+    # projections: with n.x and E.x (edge planes) of images and receivers precomputed, a pair
+    # costs a few products instead of 3-vector arithmetic. Most pairs fail here.
+    n_rx_dot = rx @ room.normal.T  # (R, F)
+    e_rx_dot = np.einsum("fvk,rk->fvr", room.edge_plane, rx)  # (F, V, R)
+    n_v = room.edge_plane.shape[1]
+    step = max(1, _CHUNK // max(n_rx * n_v, 1))
     for c0 in range(0, n_seq, step):
-        s_idx = np.repeat(np.arange(c0, min(c0 + step, n_seq)), n_rx)
-        r_idx = np.tile(np.arange(n_rx), min(c0 + step, n_seq) - c0)
-        target = rx[r_idx]
+        sl = slice(c0, min(c0 + step, n_seq))
+        f = seq[sl, k - 1]
+        img = imgs[sl, k]
+        n_img = np.sum(room.normal[f] * img, axis=1)  # (s,)
+        den = n_rx_dot[:, f].T - n_img[:, None]  # (s, R)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (room.offset[f] - n_img)[:, None] / den
+        ok = (np.abs(den) > 1e-12) & (u > _EPS) & (u < 1 - _EPS)
+        u = np.where(ok, u, 0.0)
+        e_img = np.einsum("svk,sk->sv", room.edge_plane[f], img)  # (s, V)
+        lhs = e_img[:, :, None] + u[:, None, :] * (e_rx_dot[f] - e_img[:, :, None])
+        ok &= np.all(lhs >= room.edge_level[f][:, :, None] - 1e-9, axis=1)
+        s_loc, r_idx = np.nonzero(ok)
+        s_idx = s_loc + c0
+        src = imgs[s_idx, k]
+        target = src + u[s_loc, r_idx][:, None] * (rx[r_idx] - src)
         pts = np.empty((s_idx.size, k, 3))
-        # The last reflection point lies on the segment image_k -> receiver, the one before
-        # on image_{k-1} -> that point, ...; pairs are dropped as soon as a point misses its
-        # polygon, so later (earlier-bounce) tests run on few survivors.
-        for m in range(k - 1, -1, -1):
+        pts[:, k - 1] = target
+        # The bounce before lies on the segment image_{k-1} -> that point, and so on; pairs
+        # are dropped as soon as a point misses its polygon.
+        for m in range(k - 2, -1, -1):
             f = seq[s_idx, m]
             src = imgs[s_idx, m + 1]
             d = target - src

@@ -78,25 +78,45 @@ def frequency_response(
     n_grid = 2 * _next_fast(n_freq)
     half = _SPREAD
     tau_g = np.pi * half / (n_freq**2 * 2 * 1.5)
-    tau = paths.delay - delay_offset
+    # Paths sorted by receiver and delay: the spreading then writes to nearby grid cells.
+    order = np.lexsort((paths.delay, paths.rx))
+    rx_sorted = paths.rx[order]
+    tau = paths.delay[order] - delay_offset
     cyc = tau * df
     x = 2 * np.pi * (cyc - np.floor(cyc))  # in [0, 2 pi)
     turns = tau * (f0 + k0 * df)
     turns -= np.rint(turns)
-    c = paths.amplitude * np.exp(-2j * np.pi * turns)[:, None]  # (P, B)
-    # Gaussian spreading onto grid points m0 - half + 1 .. m0 + half.
-    m0 = np.floor(x * (n_grid / (2 * np.pi))).astype(np.int64)
+    c = paths.amplitude[order] * np.exp(-2j * np.pi * turns)[:, None]  # (P, B)
+    # Gaussian spreading onto grid points m0 - half + 1 .. m0 + half, with the factorisation
+    # exp(-(e - l h)^2 / 4 tau) = exp(-e^2 / 4 tau) q^l exp(-(l h)^2 / 4 tau), q = exp(e h / 2 tau)
+    # (e = x - m0 h): two exponentials per path and products instead of 2 half exponentials.
+    h = 2 * np.pi / n_grid
+    m0 = np.floor(x / h).astype(np.int32)
+    e = x - m0 * h
     offs = np.arange(-half + 1, half + 1)
-    grid = m0[:, None] + offs  # (P, 2 half)
-    dist = x[:, None] - grid * (2 * np.pi / n_grid)
-    w = np.exp(-(dist * dist) / (4 * tau_g))
-    flat = (paths.rx[:, None] * n_grid + np.remainder(grid, n_grid)).reshape(-1)
+    q = np.exp(e * (h / (2 * tau_g)))
+    q_pow = np.empty((x.size, offs.size))
+    q_pow[:, half - 1] = 1.0  # l = 0
+    for j in range(half, offs.size):  # l = 1 .. half: 2 half products, not per-path work
+        q_pow[:, j] = q_pow[:, j - 1] * q
+    q_inv = 1.0 / q
+    for j in range(half - 2, -1, -1):  # l = -1 .. -(half - 1)
+        q_pow[:, j] = q_pow[:, j + 1] * q_inv
+    w = (np.exp(-(e * e) / (4 * tau_g))[:, None] * q_pow) * np.exp(-((offs * h) ** 2) / (4 * tau_g))
+    cell = m0[:, None] + offs.astype(np.int32)
+    cell = np.where(cell < 0, cell + n_grid, np.where(cell >= n_grid, cell - n_grid, cell))
+    flat = (rx_sorted.astype(np.int32)[:, None] * n_grid + cell).reshape(-1)
     # Spreading as one sparse (grid x path) matrix applied to all knots at once: column i
     # holds path i's 2 half Gaussian weights (already in CSC order, no sorting needed).
     spread = sparse.csc_matrix(
-        (w.reshape(-1), flat, np.arange(0, w.size + 1, 2 * half)),
+        (
+            w.reshape(-1).astype(np.float32),
+            flat,
+            np.arange(0, w.size + 1, 2 * half, dtype=np.int32),
+        ),
         shape=(n_rx * n_grid, paths.count),
     )
+    c = c.astype(np.complex64)
     g = (spread @ c).reshape(n_rx, n_grid, -1)  # (R, grid, B)
     spec = np.fft.fft(g, axis=1)
     weights = knot_weights(paths.knots, f0 + df * np.arange(n_freq))  # (B, K)

@@ -160,15 +160,23 @@ def rooms(draw: st.DrawFn) -> tuple[list[FaceSpec], Vec, Vec]:
     else:
         box = None
 
-    def point() -> Vec:
-        t = draw(st.floats(0.0, 2 * math.pi))
-        r = draw(st.floats(0.2, 0.6))
-        x, y = (
-            r * rx_ * math.cos(t) * math.cos(math.pi / n),
-            r * ry_ * math.sin(t) * math.cos(math.pi / n),
+    cx0, cy0 = float(np.mean(xy[:, 0])), float(np.mean(xy[:, 1]))
+
+    def inside(x: float, y: float) -> bool:
+        # Convex, counter-clockwise outline: left of every edge by a 0.2 m margin.
+        return all(
+            ((b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])) / math.dist(a, b) > 0.2
+            for a, b in zip(poly, poly[1:] + poly[:1], strict=True)
         )
-        if box and box[0] - 0.2 < x < box[1] + 0.2 and box[2] - 0.2 < y < box[3] + 0.2:
-            x = box[1] + 0.5  # step out of the box, still inside the room for these sizes
+
+    def point() -> Vec:
+        x, y = draw(st.floats(-rx_, rx_)), draw(st.floats(-ry_, ry_))
+        for _ in range(60):  # pull towards the centroid until inside the room
+            if inside(x, y):
+                break
+            x, y = cx0 + 0.7 * (x - cx0), cy0 + 0.7 * (y - cy0)
+        assume(inside(x, y))  # a sliver of a room has no inside with the margin
+        assume(not (box and box[0] - 0.2 < x < box[1] + 0.2 and box[2] - 0.2 < y < box[3] + 0.2))
         return (x, y, draw(st.floats(0.3, height - 0.3)))
 
     return faces, point(), point()

@@ -41,7 +41,7 @@ import numpy.typing as npt
 
 from sim_nodes.channel.antenna import AntennaPattern, OmniPattern, direction_angles
 from sim_nodes.channel.materials import EPS0, fresnel
-from sim_nodes.channel.room import Room, mirror_points, segment_face_hits
+from sim_nodes.channel.room import Room, mirror_points, plane_dot, segment_face_hits
 from sim_nodes.radar import C
 
 #: Path kinds.
@@ -231,7 +231,7 @@ def image_tree(
             )
             continue
         last = imgs[:, -1]
-        side = last @ room.normal.T - room.offset  # (S, F)
+        side = plane_dot(last, room.normal) - room.offset  # (S, F)
         ok = np.where(room.two_sided, np.abs(side) > _EPS, side > _EPS)
         if seq.shape[1]:
             ok &= sees[seq[:, -1]]
@@ -256,7 +256,7 @@ def _back_trace(
     # The last bounce is tested for every (sequence, receiver) pair, so it is done on scalar
     # projections: with n.x and E.x (edge planes) of images and receivers precomputed, a pair
     # costs a few products instead of 3-vector arithmetic. Most pairs fail here.
-    n_rx_dot = rx @ room.normal.T  # (R, F)
+    n_rx_dot = plane_dot(rx, room.normal)  # (R, F)
     e_rx_dot = np.einsum("fvk,rk->fvr", room.edge_plane, rx)  # (F, V, R)
     n_v = room.edge_plane.shape[1]
     step = max(1, _CHUNK // max(n_rx * n_v, 1))
@@ -343,7 +343,7 @@ def _legs_transmission(
                 rows = np.nonzero(f >= 0)[0]
                 hits[rows, f[rows]] = False
         trans[alive] *= np.prod(np.where(hits, t_face, 1.0), axis=1)
-        excess[alive] += hits @ e_face
+        excess[alive] += np.where(hits, e_face, 0.0).sum(axis=1)
         count[alive] += hits.sum(axis=1)
         alive = alive[trans[alive] > 0]  # blocked paths (metal) need no further legs
     return trans, excess, count

@@ -220,6 +220,19 @@ def mirror_points(points: np.ndarray, normal: np.ndarray, offset: np.ndarray) ->
     return points - 2 * side[..., None] * normal
 
 
+def plane_dot(points: np.ndarray, normals: np.ndarray) -> npt.NDArray[np.float64]:
+    """``points @ normals.T`` for 3-vectors, shape (L, F), without BLAS.
+
+    Three broadcast multiply-adds: a (L x 3) (3 x F) product is too thin for BLAS, whose
+    threads then only spin and steal CPU from the other worker process.
+    """
+    return (
+        points[:, 0, None] * normals[None, :, 0]
+        + points[:, 1, None] * normals[None, :, 1]
+        + points[:, 2, None] * normals[None, :, 2]
+    )
+
+
 def segment_face_hits(
     room: Room, p: np.ndarray, q: np.ndarray, tol: float = _EPS
 ) -> npt.NDArray[np.bool_]:
@@ -237,8 +250,8 @@ def segment_face_hits(
     if room.n_faces == 0 or p.shape[0] == 0:
         return np.zeros((p.shape[0], room.n_faces), bool)
     d = q - p
-    den = d @ room.normal.T  # (L, F)
-    num = room.offset[None, :] - p @ room.normal.T
+    den = plane_dot(d, room.normal)  # (L, F)
+    num = room.offset[None, :] - plane_dot(p, room.normal)
     with np.errstate(divide="ignore", invalid="ignore"):
         u = num / den
         hit = (np.abs(den) > 1e-12) & (u > tol) & (u < 1 - tol)

@@ -29,11 +29,11 @@ from sim_nodes.channel import (
     make_walker,
     scatter_paths,
 )
-from sim_nodes.channel.antenna import HornPattern, OmniPattern
+from sim_nodes.channel.antenna import AntennaPattern, HornPattern, OmniPattern
 from sim_nodes.channel.hybrid import HybridChannel
 from sim_nodes.channel.raytrace import AntennaArray
 from sim_nodes.channel.synth import frequency_response
-from sim_nodes.propagation import hybrid_channel
+from sim_nodes.propagation import hybrid_channel, table_pattern
 from sim_nodes.radar import MSequenceRadar
 from sim_nodes.scene import BAT_ANTENNAS, NodeModel, Scenario, ScenarioError, load_scenario
 
@@ -181,16 +181,26 @@ class SimNetwork:
         """Static spectrum of a node in the hybrid channel on the radar's DFT grid."""
         cfg = self.radar.config
         rows = []
-        for i in range(node.rx.position.shape[0]):
-            # Each receiver separately: the horns of a node may have different beams.
-            def horn(arr: Antennas, j: int) -> AntennaArray:
-                bw = float(arr.beamwidth[j])
-                pattern = OmniPattern() if bw >= 2 * np.pi else HornPattern(beamwidth=bw, f0=0.0)
-                return AntennaArray(
-                    position=arr.position[j : j + 1], yaw=arr.boresight[j : j + 1], pattern=pattern
-                )
+        model = next(m for m in self.scenario.nodes if m.id == node.id)
 
-            paths = channel.paths(horn(node.tx, 0), horn(node.rx, i))
+        def antenna(arr: Antennas, j: int, name: str) -> AntennaArray:
+            # A measured table if the node description gives one, else the horn (or omni)
+            # of its beam width, as in the image2d model.
+            ov = model.antennas.get(name)
+            bw = float(arr.beamwidth[j])
+            if ov is not None and ov.pattern_table:
+                pattern: AntennaPattern = table_pattern(ov.pattern_table)
+            elif bw >= 2 * np.pi:
+                pattern = OmniPattern()
+            else:
+                pattern = HornPattern(beamwidth=bw, f0=0.0)
+            return AntennaArray(
+                position=arr.position[j : j + 1], yaw=arr.boresight[j : j + 1], pattern=pattern
+            )
+
+        for i, name in enumerate(node.rx_names):
+            # Each receiver separately: the antennas of a node may have different patterns.
+            paths = channel.paths(antenna(node.tx, 0, "tx"), antenna(node.rx, i, name))
             rows.append(
                 frequency_response(
                     paths, 1, 0.0, cfg.fs / cfg.n, self.radar.n_bins, delay_offset=cfg.t0

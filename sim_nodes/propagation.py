@@ -13,13 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sim_nodes.channel.antenna import HornPattern, OmniPattern
+from sim_nodes.channel.antenna import AntennaPattern, HornPattern, OmniPattern, TablePattern
 from sim_nodes.channel.hybrid import HybridChannel, HybridConfig
 from sim_nodes.channel.materials import Material
 from sim_nodes.channel.raytrace import AntennaArray
 from sim_nodes.channel.room import CEILING, FLOOR, SOLID, WALL, FaceSpec, Room, vertical_face
 from sim_nodes.channel.synth import frequency_response
-from sim_nodes.scene import MaterialModel, Scenario
+from sim_nodes.scene import MaterialModel, Scenario, read_pattern_table
 
 
 def _material(m: MaterialModel, thickness: float = 0.0) -> Material:
@@ -107,6 +107,12 @@ def room_from_scenario(scenario: Scenario) -> Room:
     return Room.build(faces, tuple(materials), wedges)
 
 
+def table_pattern(path: str) -> TablePattern:
+    """A measured pattern table file (:func:`sim_nodes.scene.read_pattern_table`)."""
+    az, el, gain = read_pattern_table(path)
+    return TablePattern(np.array(az), np.array(el), np.array(gain, float))
+
+
 def channel_band(scenario: Scenario) -> tuple[float, float]:
     """Band of the hybrid channel, Hz: ``[channel] band`` or the radar's (without DC)."""
     ch = scenario.channel
@@ -169,11 +175,12 @@ def robot_arrays(
     rb = scenario.robot
     if rb is None:
         raise ValueError(f"scenario {scenario.name!r} has no [robot]")
-    pattern = (
-        HornPattern(beamwidth=rb.beamwidth, f0=rb.beamwidth_frequency)
-        if rb.pattern == "horn"
-        else OmniPattern()
-    )
+    if rb.pattern == "table":
+        pattern: AntennaPattern = table_pattern(rb.pattern_table)
+    elif rb.pattern == "horn":
+        pattern = HornPattern(beamwidth=rb.beamwidth, f0=rb.beamwidth_frequency)
+    else:
+        pattern = OmniPattern()
     x, y = rb.stops[stop]
     heads = np.arange(rb.n_headings) * rb.heading_step
     side = np.array([0.5, -0.5]) * rb.baseline

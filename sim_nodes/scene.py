@@ -319,11 +319,16 @@ class ObjectModel(_Model):
 
 
 class AntennaOverride(_Model):
-    """``[nodes.antennas.NAME]``: override of a default antenna's geometry."""
+    """``[nodes.antennas.NAME]``: override of a default antenna's geometry or pattern.
+
+    ``pattern_table`` (a CSV file, see :func:`read_pattern_table`, relative to the scenario
+    file) replaces the horn in the hybrid channel; the image2d model uses ``beamwidth``.
+    """
 
     pos: Point3 | None = None
     boresight: float | None = Field(None, ge=-2 * math.pi, le=2 * math.pi)
     beamwidth: float | None = Field(None, gt=0.0, le=2 * math.pi)
+    pattern_table: str | None = None
 
 
 class NodeModel(_Model):
@@ -364,9 +369,16 @@ class RobotModel(_Model):
     heading_step: float = Field(math.radians(3.0), gt=0.0, le=2 * math.pi)
     n_headings: int = Field(120, ge=1, le=3600)
     baseline: float = Field(1.0, gt=0.0, le=5.0)
-    pattern: Literal["omni", "horn"] = "horn"
+    pattern: Literal["omni", "horn", "table"] = "horn"
     beamwidth: float = Field(math.radians(60.0), gt=0.0, le=2 * math.pi)
     beamwidth_frequency: float = Field(9e9, ge=0.0)
+    pattern_table: str | None = None
+
+    @model_validator(mode="after")
+    def _table(self) -> RobotModel:
+        if (self.pattern == "table") != (self.pattern_table is not None):
+            raise _FieldError("pattern_table", 'give a table file exactly when pattern = "table"')
+        return self
 
 
 class PersonModel(_Model):
@@ -604,4 +616,76 @@ def load_scenario(name_or_path: str) -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {' '.join(str(exc).split())}") from None
-    return parse_scenario(data, source)
+    base = path.parent if path.suffix == ".toml" or path.exists() or "/" in text_source else None
+    _resolve_tables(data, base or Path(str(resources.files("sim_nodes.scenarios"))))
+    scenario = parse_scenario(data, source)
+    for field, table in _pattern_tables(scenario):
+        try:
+            read_pattern_table(table)
+        except (OSError, ValueError) as exc:
+            raise ScenarioError(f"{source}: {field}: {exc}") from None
+    return scenario
+
+
+def _resolve_tables(data: dict, base: Path) -> None:
+    """Make relative ``pattern_table`` paths relative to the scenario file's directory."""
+    holders = [data.get("robot")] if isinstance(data.get("robot"), dict) else []
+    for node in data.get("nodes", []) if isinstance(data.get("nodes"), list) else []:
+        if isinstance(node, dict) and isinstance(node.get("antennas"), dict):
+            holders += [a for a in node["antennas"].values() if isinstance(a, dict)]
+    for h in holders:
+        t = h.get("pattern_table")
+        if isinstance(t, str) and not Path(t).is_absolute():
+            h["pattern_table"] = str(base / t)
+
+
+def _pattern_tables(scenario: Scenario) -> list[tuple[str, str]]:
+    out = []
+    if scenario.robot is not None and scenario.robot.pattern_table:
+        out.append(("robot.pattern_table", scenario.robot.pattern_table))
+    for i, node in enumerate(scenario.nodes):
+        for name, ov in node.antennas.items():
+            if ov.pattern_table:
+                out.append((f"nodes[{i}].antennas.{name}.pattern_table", ov.pattern_table))
+    return out
+
+
+def read_pattern_table(path: str) -> tuple[list[float], list[float], list[list[float]]]:
+    """A measured antenna pattern: CSV rows ``azimuth_deg, elevation_deg, gain_db``.
+
+    ``#`` starts a comment; a header line of names is skipped. The rows must cover a full
+    azimuth x elevation grid (any order). Returns the increasing azimuths and elevations
+    (rad; azimuths wrapped to [-pi, pi)) and gains (dB) as ``gain[elevation][azimuth]``.
+
+    Raises
+    ------
+    OSError
+        The file cannot be read.
+    ValueError
+        A one-line description of the first bad line or of the incomplete grid.
+    """
+    rows: dict[tuple[float, float], float] = {}
+    with open(path, encoding="utf-8") as fh:
+        for n, line in enumerate(fh, 1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            parts = [p.strip() for p in text.split(",")]
+            try:
+                az, el, g = (float(p) for p in parts)
+            except ValueError:
+                if n == 1 and not any(c.isdigit() for c in text):
+                    continue  # a header
+                raise ValueError(
+                    f"{Path(path).name}:{n}: need 'azimuth_deg, elevation_deg, gain_db'"
+                ) from None
+            az = (az + 180.0) % 360.0 - 180.0
+            rows[(round(math.radians(az), 12), round(math.radians(el), 12))] = g
+    azs = sorted({a for a, _ in rows})
+    els = sorted({e for _, e in rows})
+    if len(azs) < 2 or len(rows) != len(azs) * len(els):
+        raise ValueError(
+            f"{Path(path).name}: not a full azimuth x elevation grid "
+            f"({len(rows)} points for {len(azs)} azimuths x {len(els)} elevations)"
+        )
+    return azs, els, [[rows[(a, e)] for a in azs] for e in els]

@@ -209,3 +209,30 @@ def test_materials_derive_fresnel_defaults() -> None:
     assert sc.materials["metal"].gamma() == -1.0 and sc.materials["metal"].transmission() == 0.0
     assert sc.materials["glass"].gamma() == pytest.approx(-1.5 / 3.5)
     assert sc.materials["glass"].transmission() == pytest.approx(1 - (1.5 / 3.5) ** 2)
+
+
+def test_measured_pattern_table_is_read_relative_to_the_scenario(tmp_path: Path) -> None:
+    import numpy as np
+
+    from sim_nodes.channel.antenna import TablePattern
+    from sim_nodes.propagation import robot_arrays
+
+    rows = ["azimuth_deg, elevation_deg, gain_db"]
+    for el in (-45, 45):
+        rows += [f"{az}, {el}, {-abs(az) / 10}" for az in range(-180, 180, 30)]
+    (tmp_path / "horn.csv").write_text("\n".join(rows) + "\n")
+    text = resources.files("sim_nodes.scenarios").joinpath("office.toml").read_text()
+    scen = tmp_path / "office_table.toml"
+    scen.write_text(
+        text.replace('pattern = "omni"', 'pattern = "table"\npattern_table = "horn.csv"')
+    )
+    tx, _, _ = robot_arrays(load_scenario(str(scen)), 0)
+    assert isinstance(tx.pattern, TablePattern)
+    db = 20 * np.log10(tx.pattern.amplitude(np.radians([0.0, 90.0, 165.0]), 0.0, 9e9))
+    np.testing.assert_allclose(db, [0.0, -9.0, -16.5], atol=1e-9)
+    (tmp_path / "horn.csv").write_text("\n".join(rows[:-1]) + "\n")  # one point missing
+    with pytest.raises(ScenarioError, match=r"robot\.pattern_table: horn\.csv: not a full"):
+        load_scenario(str(scen))
+    scen.write_text(text.replace('pattern = "omni"', 'pattern = "table"'))
+    with pytest.raises(ScenarioError, match=r"robot\.pattern_table"):
+        load_scenario(str(scen))

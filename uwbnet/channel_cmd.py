@@ -77,7 +77,38 @@ def write_dataset(ds: Any, out: Path) -> None:
     os.replace(part, out)
 
 
-def link_figures(scenario_name: str, seed: int, stop: int, plot: Path | None) -> dict[str, Any]:
+def write_paths_csv(paths: Any, names: tuple[str, ...], out: Path) -> None:
+    """The path list as CSV: one row per path (written to ``.partial``, then renamed)."""
+    from sim_nodes.channel.raytrace import DIFFRACTED
+
+    kinds = ("los", "reflected", "diffracted", "scattered")
+    mid = paths.knots.size // 2
+    part = out.with_name(out.name + ".partial")
+    with open(part, "w", encoding="utf-8") as fh:
+        fh.write(
+            "kind,order,delay_ns,amp_re,amp_im,amp_db,aod_az_deg,aod_el_deg,"
+            "aoa_az_deg,aoa_el_deg,crossings,interactions\n"
+        )
+        for i in range(paths.count):
+            a = paths.amplitude[i, mid]
+            faces = [int(f) for f in paths.faces[i] if f >= 0]
+            if paths.kind[i] == DIFFRACTED:
+                where = f"wedge {faces[0]}"
+            else:
+                where = " > ".join(names[f] for f in faces[: int(paths.order[i])])
+            aod, aoa = np.degrees(paths.aod[i]), np.degrees(paths.aoa[i])
+            fh.write(
+                f"{kinds[paths.kind[i]]},{paths.order[i]},{paths.delay[i] * 1e9:.4f},"
+                f"{a.real:.6e},{a.imag:.6e},{20 * np.log10(max(abs(a), 1e-300)):.2f},"
+                f"{aod[0]:.2f},{aod[1]:.2f},{aoa[0]:.2f},{aoa[1]:.2f},"
+                f"{paths.n_transmissions[i]},{where}\n"
+            )
+    os.replace(part, out)
+
+
+def link_figures(
+    scenario_name: str, seed: int, stop: int, plot: Path | None, paths_csv: Path | None = None
+) -> dict[str, Any]:
     """Channel parameters of one link, pure ray tracing vs hybrid, and optional plots.
 
     For a robot scenario: the robot's Tx and rx1 at ``stop``, heading 0, plus the angular PDP
@@ -138,6 +169,9 @@ def link_figures(scenario_name: str, seed: int, stop: int, plot: Path | None) ->
             "azimuth_spread_deg": round(float(np.degrees(azimuth_spread(omni_paths, 1)[0])), 1),
         }
         curves[label] = (tau, pdp[0], omni_paths)
+        if scat and paths_csv is not None:
+            write_paths_csv(paths, channel.room.names, paths_csv)
+            out["paths_csv"] = str(paths_csv)
     if plot is not None:
         import matplotlib
 

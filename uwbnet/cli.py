@@ -181,8 +181,9 @@ def cmd_channel_params(args: argparse.Namespace) -> int:
 
     _load_scenario(args.scenario)  # one-line error for a bad scenario before any work
     plot = _out_path(args.plot) if args.plot else None
+    paths_csv = _out_path(args.paths) if args.paths else None
     try:
-        result = link_figures(args.scenario, args.seed, args.stop, plot)
+        result = link_figures(args.scenario, args.seed, args.stop, plot, paths_csv)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     if not args.json:
@@ -290,6 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--stop", type=int, default=0, help="robot stop (or node number)")
     cp.add_argument("--seed", type=int, default=0, help="realization seed")
     cp.add_argument("--plot", help="save PDP and angular-PDP plots to this PNG file")
+    cp.add_argument("--paths", help="save the hybrid path list (delays, amplitudes, angles) as CSV")
     cp.add_argument("--json", action="store_true", help="print only the JSON line")
     cp.set_defaults(func=cmd_channel_params)
     cd = csub.add_parser("dataset", help="frequency responses of a robot scenario (.npz)")

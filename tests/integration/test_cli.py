@@ -167,8 +167,14 @@ def test_channel_dataset_params_and_plot(tmp_path: Path) -> None:
         assert z["response"].shape == (2, 120, 2, 1425)
         assert np.all(np.isfinite(z["response"])) and np.all(z["n_paths"] > 100)
     png = tmp_path / "office.png"
-    proc = uwbnet("channel", "params", "office", "--stop", "0", "--plot", str(png))
+    csv = tmp_path / "paths.csv"
+    proc = uwbnet(
+        "channel", "params", "office", "--stop", "0", "--plot", str(png), "--paths", str(csv)
+    )
     assert proc.returncode == 0, proc.stderr
+    rows = csv.read_text().splitlines()
+    assert rows[0].startswith("kind,order,delay_ns") and len(rows) > 500
+    assert {r.split(",")[0] for r in rows[1:]} >= {"los", "reflected", "scattered"}
     fig = json.loads(proc.stdout.strip().splitlines()[-1])
     assert fig["hybrid"]["rms_delay_spread_ns"] > fig["ray_tracing"]["rms_delay_spread_ns"]
     assert png.stat().st_size > 10_000

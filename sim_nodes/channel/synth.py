@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from scipy import fft as scipy_fft
 from scipy import sparse
 
 from sim_nodes.channel.raytrace import PathSet
@@ -78,15 +79,19 @@ def frequency_response(
     n_grid = 2 * _next_fast(n_freq)
     half = _SPREAD
     tau_g = np.pi * half / (n_freq**2 * 2 * 1.5)
-    # Paths sorted by receiver and delay: the spreading then writes to nearby grid cells.
-    order = np.lexsort((paths.delay, paths.rx))
+    # Paths grouped by receiver: the spreading then writes within one receiver's grid.
+    order = np.argsort(paths.rx, kind="stable")
     rx_sorted = paths.rx[order]
     tau = paths.delay[order] - delay_offset
     cyc = tau * df
     x = 2 * np.pi * (cyc - np.floor(cyc))  # in [0, 2 pi)
     turns = tau * (f0 + k0 * df)
     turns -= np.rint(turns)
-    c = paths.amplitude[order] * np.exp(-2j * np.pi * turns)[:, None]  # (P, B)
+    phase = (-2 * np.pi) * turns
+    rot = np.empty(turns.size, np.complex64)
+    rot.real = np.cos(phase)
+    rot.imag = np.sin(phase)
+    c = paths.amplitude.astype(np.complex64)[order] * rot[:, None]  # (P, B)
     # Gaussian spreading onto grid points m0 - half + 1 .. m0 + half, with the factorisation
     # exp(-(e - l h)^2 / 4 tau) = exp(-e^2 / 4 tau) q^l exp(-(l h)^2 / 4 tau), q = exp(e h / 2 tau)
     # (e = x - m0 h): two exponentials per path and products instead of 2 half exponentials.
@@ -94,37 +99,41 @@ def frequency_response(
     m0 = np.floor(x / h).astype(np.int32)
     e = x - m0 * h
     offs = np.arange(-half + 1, half + 1)
-    q = np.exp(e * (h / (2 * tau_g)))
-    q_pow = np.empty((x.size, offs.size))
-    q_pow[:, half - 1] = 1.0  # l = 0
+    q = np.exp(e * (h / (2 * tau_g))).astype(np.float32)
+    w = np.empty((x.size, offs.size), np.float32)
+    w[:, half - 1] = np.exp(-(e * e) / (4 * tau_g))  # l = 0
     for j in range(half, offs.size):  # l = 1 .. half: 2 half products, not per-path work
-        q_pow[:, j] = q_pow[:, j - 1] * q
+        w[:, j] = w[:, j - 1] * q
     q_inv = 1.0 / q
     for j in range(half - 2, -1, -1):  # l = -1 .. -(half - 1)
-        q_pow[:, j] = q_pow[:, j + 1] * q_inv
-    w = (np.exp(-(e * e) / (4 * tau_g))[:, None] * q_pow) * np.exp(-((offs * h) ** 2) / (4 * tau_g))
-    cell = m0[:, None] + offs.astype(np.int32)
-    cell = np.where(cell < 0, cell + n_grid, np.where(cell >= n_grid, cell - n_grid, cell))
-    flat = (rx_sorted.astype(np.int32)[:, None] * n_grid + cell).reshape(-1)
+        w[:, j] = w[:, j + 1] * q_inv
+    w *= np.exp(-((offs * h) ** 2) / (4 * tau_g)).astype(np.float32)
+    # An extended grid (half - 1 cells before, half after) avoids a modulo per weight; the
+    # overhangs are folded back (periodic grid) after spreading.
+    n_ext = n_grid + 2 * half - 1
+    cell = m0[:, None] + np.arange(2 * half, dtype=np.int32)  # index into the extended grid
+    flat = (rx_sorted.astype(np.int32)[:, None] * n_ext + cell).reshape(-1)
     # Spreading as one sparse (grid x path) matrix applied to all knots at once: column i
     # holds path i's 2 half Gaussian weights (already in CSC order, no sorting needed).
     spread = sparse.csc_matrix(
-        (
-            w.reshape(-1).astype(np.float32),
-            flat,
-            np.arange(0, w.size + 1, 2 * half, dtype=np.int32),
-        ),
-        shape=(n_rx * n_grid, paths.count),
+        (w.reshape(-1), flat, np.arange(0, w.size + 1, 2 * half, dtype=np.int32)),
+        shape=(n_rx * n_ext, paths.count),
     )
-    c = c.astype(np.complex64)
-    g = (spread @ c).reshape(n_rx, n_grid, -1)  # (R, grid, B)
-    spec = np.fft.fft(g, axis=1)
+    # Real weights times (re, im) pairs: a real sparse product on the float32 view of c,
+    # about 4x faster than letting scipy promote the weights to complex.
+    ext = np.ascontiguousarray(spread @ c.view(np.float32), np.float32).view(np.complex64)
+    ext = ext.reshape(n_rx, n_ext, -1)
+    g = ext[:, half - 1 : half - 1 + n_grid].copy()
+    g[:, n_grid - half + 1 :] += ext[:, : half - 1]
+    g[:, :half] += ext[:, half - 1 + n_grid :]
+    g = np.ascontiguousarray(g.transpose(0, 2, 1))  # (R, B, grid)
+    spec = scipy_fft.fft(g, axis=-1)  # (R, B, grid), complex64 kept
     weights = knot_weights(paths.knots, f0 + df * np.arange(n_freq))  # (B, K)
     kp = np.arange(n_freq) - k0
     deconv = np.sqrt(np.pi / tau_g) * np.exp(kp.astype(float) ** 2 * tau_g) / n_grid
     # FFT bin k' >= 0 is k', k' < 0 is n_grid + k'.
-    sel = spec[:, np.remainder(kp, n_grid), :]  # (R, K, B)
-    out[:] = np.einsum("rkb,bk->rk", sel, weights * deconv)
+    sel = spec[:, :, np.remainder(kp, n_grid)]  # (R, B, K)
+    out[:] = np.einsum("rbk,bk->rk", sel, (weights * deconv).astype(np.float32))
     return out
 
 

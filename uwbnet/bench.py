@@ -126,8 +126,9 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
         counts["deterministic"] += int(np.sum(paths.kind != 3))
 
     n, cpu, _wall = _rate(one)
+    load_before = os.getloadavg()[0]  # other work on the machine slows the wall time
     t0 = time.perf_counter()
-    ds = generate_dataset("room_pillar", seed, workers=2)
+    ds, cpu_s = generate_dataset("room_pillar", seed, workers=2)
     room_pillar_s = time.perf_counter() - t0
     return {
         "bench": "channel",
@@ -141,6 +142,9 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
         "room_pillar_receivers": 2,
         "room_pillar_workers": 2,
         "room_pillar_s": round(room_pillar_s, 2),
+        # CPU of the workers: about the wall time x 2 on an otherwise idle 2-core machine.
+        "room_pillar_cpu_s": round(cpu_s, 2),
+        "load_average_1min_before": round(load_before, 2),
         **_machine(),
     }
 

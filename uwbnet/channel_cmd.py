@@ -15,21 +15,30 @@ from typing import Any
 import numpy as np
 
 
-def _dataset_worker(args: tuple[str, int, list[int]]) -> tuple[list[int], Any]:
+def _dataset_worker(args: tuple[str, int, list[int]]) -> tuple[list[int], Any, float]:
+    import time
+
     from sim_nodes.propagation import hybrid_channel, robot_dataset
     from sim_nodes.scene import load_scenario
 
+    cpu0 = time.process_time()
     name, seed, stops = args
     scenario = load_scenario(name)
     # Every worker draws the same realization from the seed: results do not depend on the
     # number of workers.
     channel = hybrid_channel(scenario, np.random.default_rng(seed))
     ds = robot_dataset(scenario, channel, stops=stops)
-    return stops, ds
+    return stops, ds, time.process_time() - cpu0
 
 
-def generate_dataset(scenario: str, seed: int, workers: int, n_stops: int | None = None) -> Any:
-    """The robot data set of a scenario, stops split over ``workers`` processes."""
+def generate_dataset(
+    scenario: str, seed: int, workers: int, n_stops: int | None = None
+) -> tuple[Any, float]:
+    """The robot data set of a scenario, stops split over ``workers`` processes.
+
+    Returns the :class:`~sim_nodes.propagation.RobotDataset` and the CPU seconds the workers
+    spent (imports included): with the machine to itself, wall time is about CPU / workers.
+    """
     from sim_nodes.propagation import RobotDataset
     from sim_nodes.scene import load_scenario
 
@@ -50,16 +59,17 @@ def generate_dataset(scenario: str, seed: int, workers: int, n_stops: int | None
     n_h, _, n_f = first.response.shape[1:]
     resp = np.zeros((total, n_h, 2, n_f), np.complex64)
     n_paths = np.zeros((total, n_h, 2), np.int64)
-    for stops, ds in results:
+    for stops, ds, _ in results:
         resp[stops] = ds.response
         n_paths[stops] = ds.n_paths
+    cpu = sum(r[2] for r in results)
     return RobotDataset(
         frequencies=first.frequencies,
         stops=np.array(sc.robot.stops[:total], float),
         headings=first.headings,
         response=resp,
         n_paths=n_paths,
-    )
+    ), cpu
 
 
 def write_dataset(ds: Any, out: Path) -> None:

@@ -202,7 +202,7 @@ def cmd_channel_dataset(args: argparse.Namespace) -> int:
     out = _out_path(args.out)
     t0 = time.perf_counter()
     try:
-        ds = generate_dataset(args.scenario, args.seed, args.workers, args.stops)
+        ds, cpu = generate_dataset(args.scenario, args.seed, args.workers, args.stops)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     wall = time.perf_counter() - t0
@@ -216,6 +216,7 @@ def cmd_channel_dataset(args: argparse.Namespace) -> int:
                 "receivers": 2,
                 "frequencies": int(ds.frequencies.size),
                 "wall_s": round(wall, 2),
+                "cpu_s": round(cpu, 2),
                 "workers": args.workers,
             }
         )

@@ -159,6 +159,18 @@ def rooms(draw: st.DrawFn) -> tuple[list[FaceSpec], Vec, Vec]:
         box = (cx - w, cx + w, cy - d, cy + d)
     else:
         box = None
+    # Optionally a free-standing two-sided screen (a wall segment reflecting on both sides).
+    if draw(st.booleans()):
+        sx, sy = draw(st.floats(-1.5, 1.5)), draw(st.floats(-1.5, 1.5))
+        ang, half_len = draw(st.floats(0, math.pi)), draw(st.floats(0.3, 1.0))
+        a = (sx - half_len * math.cos(ang), sy - half_len * math.sin(ang))
+        b = (sx + half_len * math.cos(ang), sy + half_len * math.sin(ang))
+        vert, nrm = vertical_face(
+            a, b, 0.0, draw(st.floats(1.0, height)), [-math.sin(ang), math.cos(ang)]
+        )
+        faces.append(
+            FaceSpec(vertices=vert, normal=nrm, material=0, two_sided=True, kind=0, name="screen")
+        )
 
     cx0, cy0 = float(np.mean(xy[:, 0])), float(np.mean(xy[:, 1]))
 

@@ -148,6 +148,9 @@ def scatterer_paths(
         ``kind == SCATTERED``; other attributes those of the parent specular path.
     """
     k0 = 2 * np.pi * config.center_frequency / C
+    # Eq. (1) without Gamma depends only on the offsets: evaluate it once on the table.
+    delta = np.linalg.norm(clusters, axis=-1)  # (n_table, N)
+    table_scale = (config.a + config.p * delta) * np.exp(-1j * k0 * delta)
     parent_rows, delays, scales = [], [], []
     for g in geometry:
         k = g.sequence.shape[1]
@@ -156,24 +159,25 @@ def scatterer_paths(
         excess = paths.delay[g.index] - g.length / C  # through-wall excess of the parent
         for m in range(k):
             face = g.sequence[:, m]
-            offs = clusters[cluster_index(g.sequence, m, clusters.shape[0])]  # (n, N, 2)
-            q = (
-                g.points[:, m, None, :]
-                + offs[..., :1] * room.axis_u[face][:, None, :]
-                + offs[..., 1:] * room.axis_v[face][:, None, :]
-            )  # (n, N, 3)
-            # Scatterers that fall off the face are not on the surface: dropped.
-            row, col = np.nonzero(room.contains(np.broadcast_to(face[:, None], q.shape[:2]), q))
-            q = q[row, col]
-            delta = np.linalg.norm(offs[row, col], axis=-1)
+            cluster = cluster_index(g.sequence, m, clusters.shape[0])
+            offs = clusters[cluster]  # (n, N, 2)
+            # Scatterers that fall off the face are not on the surface: dropped. In the
+            # face's plane the edge test is linear: E.(X + o) = E.X + E.o.
+            axes = np.stack([room.axis_u[face], room.axis_v[face]], axis=1)  # (n, 2, 3)
+            plane = room.edge_plane[face]  # (n, V, 3)
+            at_point = np.einsum("nvk,nk->nv", plane, g.points[:, m])
+            along = np.einsum("nvk,njk->nvj", plane, axes)  # (n, V, 2)
+            lhs = at_point[:, None, :] + np.einsum("nvj,nsj->nsv", along, offs)
+            on_face = np.all(lhs >= room.edge_level[face][:, None, :] - 1e-9, axis=-1)
+            row, col = np.nonzero(on_face)
+            o = offs[row, col]
+            q = g.points[row, m] + o[:, :1] * axes[row, 0] + o[:, 1:] * axes[row, 1]
             length = np.linalg.norm(q - g.tx_images[row, m], axis=-1) + np.linalg.norm(
                 q - g.rx_images[row, m], axis=-1
             )
             parent_rows.append(g.index[row])
             delays.append(length / C + excess[row])
-            scales.append(
-                (config.a + config.p * delta) * np.exp(-1j * k0 * delta) * (g.length[row] / length)
-            )
+            scales.append(table_scale[cluster[row], col] * (g.length[row] / length))
     if not parent_rows:
         return paths.select(np.zeros(paths.count, bool))
     rows = np.concatenate(parent_rows)

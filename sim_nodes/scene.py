@@ -39,6 +39,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from sim_nodes.radar import RadarConfig
@@ -457,86 +458,113 @@ class Scenario(_Model):
         self._antennas_in_free_space()
         return self
 
-    def antenna_positions(self) -> list[tuple[str, list[float]]]:
-        """World positions of every antenna: (scenario element, [x, y, z]).
+    def antenna_positions(self) -> tuple[list[str], np.ndarray]:
+        """World positions of every antenna and the scenario element each belongs to.
 
         Static nodes give their tx, rx1, rx2; the robot gives its antennas at every stop and
-        heading (the elements are named ``robot.stops[i]``).
+        heading (element ``robot.stops[i]``).
+
+        Returns
+        -------
+        labels : list of str, one per row
+        positions : ndarray, float64, shape (M, 3), m
         """
-        out = []
+        labels, rows = [], []
         for i, node in enumerate(self.nodes):
             x, y, z, yaw = node.pose
             c, s = math.cos(yaw), math.sin(yaw)
             for name, (pos, _, _) in BAT_ANTENNAS.items():
                 ov = node.antennas.get(name)
                 px, py, pz = ov.pos if ov and ov.pos else pos
-                out.append(
-                    (
-                        f"nodes[{i}].antennas.{name} ({node.id})",
-                        [x + c * px - s * py, y + s * px + c * py, z + pz],
-                    )
-                )
+                labels.append(f"nodes[{i}].antennas.{name} ({node.id})")
+                rows.append([x + c * px - s * py, y + s * px + c * py, z + pz])
+        pos = np.array(rows, float).reshape(-1, 3)
         if self.robot is not None:
             rb = self.robot
-            for i, (x, y) in enumerate(rb.stops):
-                out.append((f"robot.stops[{i}]", [x, y, rb.height]))
-                for k in range(rb.n_headings):
-                    h = k * rb.heading_step
-                    for side in (0.5, -0.5):
-                        off = side * rb.baseline
-                        px, py = x - math.sin(h) * off, y + math.cos(h) * off
-                        out.append((f"robot.stops[{i}]", [px, py, rb.height]))
-        return out
+            stops = np.array(rb.stops, float)
+            heads = np.arange(rb.n_headings) * rb.heading_step
+            side = np.array([0.5, -0.5]) * rb.baseline
+            # Per stop: the Tx, then rx1 and rx2 at every heading.
+            rx_x = stops[:, None, None, 0] - np.sin(heads)[None, :, None] * side
+            rx_y = stops[:, None, None, 1] + np.cos(heads)[None, :, None] * side
+            rx = np.stack([rx_x, rx_y], axis=-1).reshape(len(stops), -1, 2)
+            xy = np.concatenate([stops[:, None, :], rx], axis=1).reshape(-1, 2)
+            pos = np.concatenate([pos, np.column_stack([xy, np.full(len(xy), rb.height)])])
+            per_stop = 1 + 2 * rb.n_headings
+            labels += [f"robot.stops[{i}]" for i in range(len(stops)) for _ in range(per_stop)]
+        return labels, pos
 
     def _antennas_in_free_space(self) -> None:
         """Raise a _FieldError naming the first antenna inside a wall, object or slab."""
-        for where, (x, y, z) in self.antenna_positions():
-            for j, w in enumerate(self.walls):
-                if z <= w.height and _segment_distance((x, y), w.start, w.end) < w.thickness / 2:
-                    raise _FieldError(
-                        where, f"antenna at ({x:.3g}, {y:.3g}, {z:.3g}) is inside walls[{j}]"
-                    )
-            for j, o in enumerate(self.objects):
-                if o.z[0] <= z <= o.z[1] and _inside_convex((x, y), o.footprint):
-                    raise _FieldError(
-                        where,
-                        f"antenna at ({x:.3g}, {y:.3g}, {z:.3g}) is inside objects[{j}] ({o.id})",
-                    )
-            room = self.room
-            if room is None:
-                continue
-            if not room.floor < z < room.top:
-                raise _FieldError(
-                    where, f"antenna at height {z:.3g} m is outside the room's floor..ceiling"
-                )
+        labels, pos = self.antenna_positions()
+        if pos.shape[0] == 0:
+            return
+        x, y, z = pos[:, 0], pos[:, 1], pos[:, 2]
+        found: list[tuple[int, str]] = []  # (first offending row, message) of each check
+
+        def first(mask: np.ndarray, what: str) -> None:
+            # mask (M, E): the first antenna row inside any element, and that element.
+            if mask.size and mask.any():
+                row = int(np.argmax(mask.any(axis=1)))
+                elem = int(np.argmax(mask[row]))
+                found.append((row, what.format(elem=elem)))
+
+        if self.walls:
+            a = np.array([w.start for w in self.walls], float)
+            b = np.array([w.end for w in self.walls], float)
+            half = np.array([w.thickness / 2 for w in self.walls])
+            top = np.array([w.height for w in self.walls])
+            first(
+                (_segment_distances(pos[:, :2], a, b) < half) & (z[:, None] <= top),
+                "is inside walls[{elem}]",
+            )
+        for j, o in enumerate(self.objects):
+            poly = np.array(o.footprint, float)
+            inside = _inside_convex(pos[:, :2], poly) & (z >= o.z[0]) & (z <= o.z[1])
+            first(inside[:, None], f"is inside objects[{j}] ({o.id})")
+        room = self.room
+        if room is not None:
+            first(
+                ((z <= room.floor) | (z >= room.top))[:, None],
+                "is outside the room's floor..ceiling",
+            )
+            poly = np.array(room.outline, float)
             ccw = _signed_area(room.outline) > 0
-            for j, (a, b) in enumerate(itertools.pairwise(room.outline)):
-                # Signed distance into the room from the outline edge, and the foot point.
-                ex, ey = b[0] - a[0], b[1] - a[1]
-                length = math.hypot(ex, ey)
-                inward = ((x - a[0]) * -ey + (y - a[1]) * ex) / length * (1 if ccw else -1)
-                along = ((x - a[0]) * ex + (y - a[1]) * ey) / length**2
-                if -room.thickness < inward < 1e-9 and 0.0 <= along <= 1.0:
-                    raise _FieldError(
-                        where,
-                        f"antenna at ({x:.3g}, {y:.3g}, {z:.3g}) is inside the room's wall "
-                        f"room.outline[{j}]-[{j + 1}]",
-                    )
+            a, b = poly[:-1], poly[1:]
+            e = b - a
+            length = np.linalg.norm(e, axis=1)
+            # Signed distance into the room from each outline edge, and the foot parameter.
+            inward = ((x[:, None] - a[:, 0]) * -e[:, 1] + (y[:, None] - a[:, 1]) * e[:, 0]) / length
+            inward *= 1 if ccw else -1
+            along = (
+                (x[:, None] - a[:, 0]) * e[:, 0] + (y[:, None] - a[:, 1]) * e[:, 1]
+            ) / length**2
+            first(
+                (inward > -room.thickness) & (inward < 1e-9) & (along >= 0) & (along <= 1),
+                "is inside the room's wall room.outline[{elem}]",
+            )
+        if found:
+            row, what = min(found, key=lambda f: f[0])
+            px, py, pz = pos[row]
+            raise _FieldError(labels[row], f"antenna at ({px:.3g}, {py:.3g}, {pz:.3g}) {what}")
 
 
-def _segment_distance(p: tuple[float, float], a: list[float], b: list[float]) -> float:
-    ex, ey = b[0] - a[0], b[1] - a[1]
-    t = ((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / (ex * ex + ey * ey)
-    t = min(1.0, max(0.0, t))
-    return math.hypot(p[0] - a[0] - t * ex, p[1] - a[1] - t * ey)
+def _segment_distances(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances in x, y from points (M, 2) to segments a-b (E, 2), shape (M, E)."""
+    e = b - a
+    t = np.einsum("mek,ek->me", p[:, None, :] - a, e) / np.sum(e * e, axis=1)
+    foot = a + np.clip(t, 0.0, 1.0)[..., None] * e
+    return np.linalg.norm(p[:, None, :] - foot, axis=-1)
 
 
-def _inside_convex(p: tuple[float, float], poly: list[list[float]]) -> bool:
-    sign = 1 if _signed_area(poly) > 0 else -1
-    return all(
-        sign * ((b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])) > 0
-        for a, b in itertools.pairwise(poly)
+def _inside_convex(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Whether points (M, 2) are strictly inside a closed convex polygon (V + 1, 2)."""
+    a, b = poly[:-1], poly[1:]
+    cross = (b[:, 0] - a[:, 0]) * (p[:, None, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (
+        p[:, None, 0] - a[:, 0]
     )
+    sign = 1.0 if _signed_area(poly.tolist()) > 0 else -1.0
+    return np.all(sign * cross > 0, axis=1)
 
 
 def _loc(loc: tuple[int | str, ...]) -> str:

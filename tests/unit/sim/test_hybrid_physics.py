@@ -284,3 +284,34 @@ def test_zero_scatterers_is_pure_ray_tracing() -> None:
     p = none.paths(tx, rx)
     np.testing.assert_array_equal(p.delay, rt.delay)
     assert not np.any(p.kind == SCATTERED)
+
+
+def test_angular_pdp_of_a_rotating_horn_points_at_the_echo() -> None:
+    from sim_nodes.channel.params import angular_pdp
+
+    # Receiver 1 m south of the Tx, metal wall at x = 5: the echo arrives from the Tx image
+    # (9, 1), at atan(1/8) = 7.1 degrees; the direct path from the north (+90 degrees).
+    tx, rx = omni((1.0, 1.0, 1.2)), omni((1.0, 0.0, 1.2))
+    paths, _ = trace(metal_wall_room(5.0), tx, rx, FREQS[[0, -1]], max_order=1)
+    headings = np.radians(np.arange(-180, 180, 3.0))
+    pdp, tau = angular_pdp(paths, 0, headings, HornPattern(), F0, DF, NF)
+    echo = np.argmin(np.abs(tau - paths.delay[paths.kind == REFLECTED][0]))
+    direct = np.argmin(np.abs(tau - paths.delay[paths.kind == LOS][0]))
+    assert np.degrees(headings[np.argmax(pdp[:, echo])]) == pytest.approx(
+        np.degrees(np.arctan2(1, 8)), abs=1.6
+    )
+    assert np.degrees(headings[np.argmax(pdp[:, direct])]) == pytest.approx(90.0, abs=1.6)
+
+
+def test_robot_data_set_stops_are_independent_and_seeded() -> None:
+    from sim_nodes.propagation import hybrid_channel, robot_dataset
+    from sim_nodes.scene import load_scenario
+
+    sc = load_scenario("room_pillar")
+    a = robot_dataset(sc, hybrid_channel(sc, np.random.default_rng(5)), stops=[3])
+    b = robot_dataset(sc, hybrid_channel(sc, np.random.default_rng(5)), stops=[60, 3])
+    np.testing.assert_array_equal(a.response[0], b.response[1])
+    assert a.response.shape == (1, 120, 2, 1425)
+    # Turning the robot changes what its horns see.
+    power = np.mean(np.abs(a.response[0, :, 0]) ** 2, axis=-1)
+    assert power.max() > 3 * power.min()

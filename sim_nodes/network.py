@@ -6,8 +6,11 @@ illuminates the scene; its two receivers record
 
 .. math:: h_r = \\mathrm{irfft}(G (C^{static}_r + C^{people}_r(t)) + V_r)
 
-where the static channel (coupling and wall reflections up to order 2) is computed once
-per node and only the people's single-bounce paths are computed per call.
+where the static channel is computed once per node and only the people's single-bounce
+paths are computed per call. The static channel is the scenario's ``[channel] model``:
+``image2d`` (coupling and wall reflections up to order 2, scalar reflection factors) or
+``hybrid`` (:mod:`sim_nodes.channel.hybrid`: 3-D ray tracing with Fresnel reflection,
+diffraction and the stochastic scatterer clusters, one realization per seed).
 """
 
 from __future__ import annotations
@@ -26,15 +29,14 @@ from sim_nodes.channel import (
     make_walker,
     scatter_paths,
 )
+from sim_nodes.channel.antenna import AntennaPattern, HornPattern, OmniPattern
+from sim_nodes.channel.hybrid import HybridChannel
+from sim_nodes.channel.raytrace import AntennaArray
+from sim_nodes.channel.synth import frequency_response
+from sim_nodes.propagation import hybrid_channel, table_pattern
 from sim_nodes.radar import MSequenceRadar
-from sim_nodes.scene import NodeModel, Scenario, load_scenario
+from sim_nodes.scene import BAT_ANTENNAS, NodeModel, Scenario, ScenarioError, load_scenario
 
-#: Default bat-node antennas: name -> (pos in node frame [m], tx, rx).
-BAT_ANTENNAS: dict[str, tuple[tuple[float, float, float], bool, bool]] = {
-    "tx": ((0.0, 0.0, 0.0), True, False),
-    "rx1": ((0.0, 0.5, 0.0), False, True),
-    "rx2": ((0.0, -0.5, 0.0), False, True),
-}
 #: Horn 3 dB beamwidth, rad (about 100 degrees).
 BAT_BEAMWIDTH = 1.75
 
@@ -103,6 +105,11 @@ class SimNetwork:
     def __init__(self, scenario: Scenario | str, seed: int) -> None:
         if isinstance(scenario, str):
             scenario = load_scenario(scenario)
+        if not scenario.nodes:
+            raise ScenarioError(
+                f"{scenario.name}: no static [[nodes]] to simulate (a [robot] scenario: "
+                f"use 'uwbnet channel dataset {scenario.name}')"
+            )
         self.scenario = scenario
         self.seed = seed
         self.radar = MSequenceRadar(scenario.radar.config())
@@ -114,9 +121,8 @@ class SimNetwork:
                 start=np.array([w.start for w in walls], float),
                 end=np.array([w.end for w in walls], float),
                 height=np.array([w.height for w in walls], float),
-                reflection=np.array([mats[w.material].reflection for w in walls], float),
-                transmission=10
-                ** (-np.array([mats[w.material].transmission_loss_db for w in walls]) / 20),
+                reflection=np.array([mats[w.material].gamma() for w in walls], float),
+                transmission=np.array([mats[w.material].transmission() for w in walls], float),
                 excess=np.array(
                     [w.thickness * (np.sqrt(mats[w.material].permittivity) - 1) for w in walls]
                 ),
@@ -124,7 +130,8 @@ class SimNetwork:
             if walls
             else Walls.empty()
         )
-        children = np.random.SeedSequence(seed).spawn(len(scenario.nodes) + 1)
+        # Child n + 1 (the channel realization) is new; children 0..n are unchanged by it.
+        children = np.random.SeedSequence(seed).spawn(len(scenario.nodes) + 2)
         scene_rng = np.random.default_rng(children[0])
         self.crowd = Crowd(
             [
@@ -150,19 +157,56 @@ class SimNetwork:
         self._nodes = {m.id: _build_node(m) for m in scenario.nodes}
         self._rng = {
             nid: np.random.default_rng(child)
-            for nid, child in zip(self._nodes, children[1:], strict=True)
+            for nid, child in zip(self._nodes, children[1:-1], strict=True)
         }
         self._fluct = {
             nid: Fluctuation(self.crowd.n_points, ch.fluctuation_time, self._rng[nid])
             for nid in self._nodes
         }
         # Static nodes: coupling + walls never change, so their spectrum is computed once.
-        self._static = {
-            nid: self.radar.path_spectrum(
-                *image_paths(node.tx, node.rx, self.walls, ch.reflection_order)
+        if ch.model == "hybrid":
+            channel = hybrid_channel(scenario, np.random.default_rng(children[-1]))
+            self._static = {
+                nid: self._hybrid_spectrum(channel, node) for nid, node in self._nodes.items()
+            }
+        else:
+            self._static = {
+                nid: self.radar.path_spectrum(
+                    *image_paths(node.tx, node.rx, self.walls, ch.reflection_order)
+                )
+                for nid, node in self._nodes.items()
+            }
+
+    def _hybrid_spectrum(self, channel: HybridChannel, node: _Node) -> np.ndarray:
+        """Static spectrum of a node in the hybrid channel on the radar's DFT grid."""
+        cfg = self.radar.config
+        rows = []
+        model = next(m for m in self.scenario.nodes if m.id == node.id)
+
+        def antenna(arr: Antennas, j: int, name: str) -> AntennaArray:
+            # A measured table if the node description gives one, else the horn (or omni)
+            # of its beam width, as in the image2d model.
+            ov = model.antennas.get(name)
+            bw = float(arr.beamwidth[j])
+            if ov is not None and ov.pattern_table:
+                pattern: AntennaPattern = table_pattern(ov.pattern_table)
+            elif bw >= 2 * np.pi:
+                pattern = OmniPattern()
+            else:
+                pattern = HornPattern(beamwidth=bw, f0=0.0)
+            return AntennaArray(
+                position=arr.position[j : j + 1], yaw=arr.boresight[j : j + 1], pattern=pattern
             )
-            for nid, node in self._nodes.items()
-        }
+
+        for i, name in enumerate(node.rx_names):
+            # Each receiver separately: the antennas of a node may have different patterns.
+            paths = channel.paths(antenna(node.tx, 0, "tx"), antenna(node.rx, i, name))
+            rows.append(
+                frequency_response(
+                    paths, 1, 0.0, cfg.fs / cfg.n, self.radar.n_bins, delay_offset=cfg.t0
+                )[0]
+            )
+        return np.stack(rows)
 
     @property
     def node_ids(self) -> list[str]:

@@ -137,7 +137,64 @@ def bench_fuzz(seed: int = 0) -> dict[str, Any]:
     return {**out, **_machine()}
 
 
+def bench_channel(seed: int = 0) -> dict[str, Any]:
+    """Hybrid channel on room_pillar: one Tx/Rx pair (order 3, scatterers, 1,425 frequencies,
+    impulse response) per second per core, paths per second, and the wall time of the whole
+    room_pillar data set (9,360 acquisitions x 2 receivers) on 2 worker processes."""
+    import numpy as np
+
+    from sim_nodes.channel.raytrace import AntennaArray
+    from sim_nodes.channel.synth import frequency_response, impulse_response
+    from sim_nodes.propagation import channel_band, hybrid_channel, robot_arrays
+    from sim_nodes.scene import load_scenario
+    from uwbnet.channel_cmd import generate_dataset
+
+    sc = load_scenario("room_pillar")
+    channel = hybrid_channel(sc, np.random.default_rng(seed))
+    f_lo, f_hi = channel_band(sc)
+    df = sc.channel.frequency_step or 6.25e6
+    n_f = int((f_hi - f_lo) / df + 1e-9) + 1
+    rng = np.random.default_rng(seed)
+    arrays = [robot_arrays(sc, s) for s in range(len(sc.robot.stops))]
+    counts = {"paths": 0, "deterministic": 0}
+
+    def one(i: int) -> None:
+        tx, rx, heads = arrays[i % len(arrays)]
+        h = int(rng.integers(heads.size))
+        rx1 = AntennaArray(
+            position=rx.position[2 * h : 2 * h + 1], yaw=heads[h : h + 1], pattern=rx.pattern
+        )
+        paths = channel.paths(tx, rx1, tx_yaw=heads[h : h + 1])
+        impulse_response(frequency_response(paths, 1, f_lo, df, n_f), df)
+        counts["paths"] += paths.count
+        counts["deterministic"] += int(np.sum(paths.kind != 3))
+
+    n, cpu, _wall = _rate(one)
+    load_before = os.getloadavg()[0]  # other work on the machine slows the wall time
+    t0 = time.perf_counter()
+    ds, cpu_s = generate_dataset("room_pillar", seed, workers=2)
+    room_pillar_s = time.perf_counter() - t0
+    return {
+        "bench": "channel",
+        "scenario": "room_pillar",
+        "pair_frequencies": n_f,
+        "paths_per_pair": round(counts["paths"] / n, 1),
+        "deterministic_paths_per_pair": round(counts["deterministic"] / n, 1),
+        "paths_per_s": round(counts["paths"] / cpu, 1),
+        "ir_per_s_per_core": round(n / cpu, 2),
+        "room_pillar_acquisitions": int(ds.response.shape[0] * ds.response.shape[1]),
+        "room_pillar_receivers": 2,
+        "room_pillar_workers": 2,
+        "room_pillar_s": round(room_pillar_s, 2),
+        # CPU of the workers: about the wall time x 2 on an otherwise idle 2-core machine.
+        "room_pillar_cpu_s": round(cpu_s, 2),
+        "load_average_1min_before": round(load_before, 2),
+        **_machine(),
+    }
+
+
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
+    "channel": bench_channel,
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,

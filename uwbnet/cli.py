@@ -202,6 +202,47 @@ def cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_channel_table(args: argparse.Namespace) -> int:
+    from sim_nodes.study import channel_study
+
+    scenario = _load_scenario(args.scenario)
+    try:
+        rows = channel_study(scenario, args.seed, realizations=args.realizations)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if not args.json:
+        print(
+            f"{'model':<24}{'a':>6}{'N':>5}{'order':>6}{'power dB':>10}{'mean ns':>9}"
+            f"{'rms DS ns':>10}{'AS deg':>8}{'paths/rx':>10}"
+        )
+        for r in rows:
+            a = "-" if r["a"] is None else f"{r['a']:g}"
+            print(
+                f"{r['model']:<24}{a:>6}{r['N']:>5}{r['scatter_order']:>6}{r['power_db']:>10.2f}"
+                f"{r['mean_delay_ns']:>9.2f}{r['rms_delay_spread_ns']:>10.2f}"
+                f"{r['azimuth_spread_deg']:>8.1f}{r['paths_per_rx']:>10.0f}"
+            )
+    print(json.dumps({"scenario": scenario.name, "seed": args.seed, "rows": rows}))
+    return 0
+
+
+def cmd_channel_params(args: argparse.Namespace) -> int:
+    from uwbnet.channel_cmd import link_figures
+
+    _load_scenario(args.scenario)  # one-line error for a bad scenario before any work
+    plot = _out_path(args.plot) if args.plot else None
+    paths_csv = _out_path(args.paths) if args.paths else None
+    try:
+        result = link_figures(args.scenario, args.seed, args.stop, plot, paths_csv)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if not args.json:
+        for label in ("ray_tracing", "hybrid"):
+            print(f"{label}: " + ", ".join(f"{k} {v}" for k, v in result[label].items()))
+    print(json.dumps(result))
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from uwbnet.config import RecordFile, load_config
     from uwbnet.processes import run_replay, stop_on_signals
@@ -242,6 +283,37 @@ def _add_zenoh_args(p: argparse.ArgumentParser, *, config_required: bool) -> Non
     p.add_argument("--connect", action="append", help="zenoh endpoint to connect to (repeatable)")
     p.add_argument("--listen", action="append", help="zenoh endpoint to listen on (repeatable)")
     p.add_argument("--mode", choices=("peer", "client", "router"), help="zenoh mode")
+
+
+def cmd_channel_dataset(args: argparse.Namespace) -> int:
+    import time
+
+    from uwbnet.channel_cmd import generate_dataset, write_dataset
+
+    _load_scenario(args.scenario)
+    out = _out_path(args.out)
+    t0 = time.perf_counter()
+    try:
+        ds, cpu = generate_dataset(args.scenario, args.seed, args.workers, args.stops)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    wall = time.perf_counter() - t0
+    write_dataset(ds, out)
+    n_acq = int(ds.response.shape[0] * ds.response.shape[1])
+    print(
+        json.dumps(
+            {
+                "out": str(out),
+                "acquisitions": n_acq,
+                "receivers": 2,
+                "frequencies": int(ds.frequencies.size),
+                "wall_s": round(wall, 2),
+                "cpu_s": round(cpu, 2),
+                "workers": args.workers,
+            }
+        )
+    )
+    return 0
 
 
 # --- parser ----------------------------------------------------------------------------------
@@ -326,10 +398,34 @@ def build_parser() -> argparse.ArgumentParser:
     rc.set_defaults(func=cmd_recover)
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument("name", choices=("dsp", "fusion", "fuzz", "sim"))
+    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
+
+    c = sub.add_parser("channel", help="hybrid channel model: figures, plots, data sets")
+    csub = c.add_subparsers(dest="channel_command", required=True, parser_class=_Parser)
+    ct = csub.add_parser("table", help="ray tracing vs hybrid, a, N and scatter order (Fig. 12)")
+    ct.add_argument("scenario", nargs="?", default="office", help="robot scenario (office)")
+    ct.add_argument("--seed", type=int, default=0, help="realization seed")
+    ct.add_argument("--realizations", type=int, default=3, help="realizations averaged per row")
+    ct.add_argument("--json", action="store_true", help="print only the JSON line")
+    ct.set_defaults(func=cmd_channel_table)
+    cp = csub.add_parser("params", help="path loss, delays, spreads of one link; plots")
+    cp.add_argument("scenario", help="shipped scenario name or TOML path")
+    cp.add_argument("--stop", type=int, default=0, help="robot stop (or node number)")
+    cp.add_argument("--seed", type=int, default=0, help="realization seed")
+    cp.add_argument("--plot", help="save PDP and angular-PDP plots to this PNG file")
+    cp.add_argument("--paths", help="save the hybrid path list (delays, amplitudes, angles) as CSV")
+    cp.add_argument("--json", action="store_true", help="print only the JSON line")
+    cp.set_defaults(func=cmd_channel_params)
+    cd = csub.add_parser("dataset", help="frequency responses of a robot scenario (.npz)")
+    cd.add_argument("scenario", help="robot scenario, e.g. room_pillar")
+    cd.add_argument("--out", required=True, help="output .npz file")
+    cd.add_argument("--seed", type=int, default=0, help="realization seed")
+    cd.add_argument("--workers", type=int, default=2, choices=range(1, 65), metavar="N")
+    cd.add_argument("--stops", type=int, help="only the first N stops")
+    cd.set_defaults(func=cmd_channel_dataset)
     return p
 
 

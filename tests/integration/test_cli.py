@@ -117,7 +117,7 @@ def test_eval_rejects_a_bad_tracks_file(recording: Path, tmp_path: Path) -> None
 
 
 def test_help_of_every_command() -> None:
-    for cmd in ("demo", "sim", "track", "eval", "bench"):
+    for cmd in ("demo", "sim", "track", "eval", "bench", "channel"):
         proc = uwbnet(cmd, "--help")
         assert proc.returncode == 0
         assert "usage: uwbnet" in proc.stdout
@@ -138,3 +138,47 @@ def test_demo_runs_records_and_the_recording_tracks(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     stats = json.loads(proc.stdout.strip().splitlines()[-1])
     assert stats["nodes"] == 6 and stats["ir"] > 1000 and stats["rejected"] == 0
+
+
+def test_bad_scenario_geometry_is_one_line_naming_the_element(tmp_path: Path) -> None:
+    src = Path(sim_nodes.__file__).parent / "scenarios" / "foyer3.toml"
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        src.read_text().replace("pose = [0.25, 4.5, 1.2, 0.0]", "pose = [0.01, 4.5, 1.2, 0.0]")
+    )
+    proc = uwbnet("sim", str(bad), "--duration", "1", "--out", str(tmp_path / "x.mcap"))
+    assert_one_line_error(proc, "nodes[0].antennas.tx (bat1)", "inside walls[2]")
+    assert not (tmp_path / "x.mcap").exists()
+    proc = uwbnet("sim", "room_pillar", "--out", str(tmp_path / "x.mcap"))
+    assert_one_line_error(proc, "no static [[nodes]]", "uwbnet channel dataset room_pillar")
+
+
+def test_channel_dataset_params_and_plot(tmp_path: Path) -> None:
+    import numpy as np
+
+    out = tmp_path / "rp.npz"
+    proc = uwbnet(
+        "channel", "dataset", "room_pillar", "--stops", "2", "--workers", "1", "--out", str(out)
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["acquisitions"] == 240 and summary["frequencies"] == 1425
+    with np.load(out) as z:
+        assert z["response"].shape == (2, 120, 2, 1425)
+        assert np.all(np.isfinite(z["response"])) and np.all(z["n_paths"] > 100)
+    png = tmp_path / "office.png"
+    csv = tmp_path / "paths.csv"
+    proc = uwbnet(
+        "channel", "params", "office", "--stop", "0", "--plot", str(png), "--paths", str(csv)
+    )
+    assert proc.returncode == 0, proc.stderr
+    rows = csv.read_text().splitlines()
+    assert rows[0].startswith("kind,order,delay_ns") and len(rows) > 500
+    assert {r.split(",")[0] for r in rows[1:]} >= {"los", "reflected", "scattered"}
+    fig = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert fig["hybrid"]["rms_delay_spread_ns"] > fig["ray_tracing"]["rms_delay_spread_ns"]
+    assert png.stat().st_size > 10_000
+    assert_one_line_error(uwbnet("channel", "params", "office", "--stop", "99"), "--stop")
+    assert_one_line_error(
+        uwbnet("channel", "dataset", "foyer3", "--out", str(tmp_path / "f.npz")), "no [robot]"
+    )

@@ -202,3 +202,48 @@ def test_only_bat6_looks_through_a_wall_into_the_foyer(foyer3) -> None:  # type:
         trans, _ = wall_crossings(tx, centre, net.walls)
         expected = 10 ** (-7 / 20) if node == "bat6" else 1.0  # the brick partition
         assert trans[0] == pytest.approx(expected), node
+
+
+def test_hybrid_and_image2d_models_agree_on_wall_echo_delays(foyer3) -> None:  # type: ignore[no-untyped-def]
+    # Both are image methods on the same vertical walls: with scatterers and diffraction off
+    # the hybrid model must find exactly the image2d paths (delays), only the reflection
+    # coefficients differ (Fresnel vs scalar Gamma).
+    import dataclasses
+
+    from sim_nodes.channel import image_paths
+    from sim_nodes.channel.antenna import OmniPattern
+    from sim_nodes.channel.raytrace import AntennaArray
+    from sim_nodes.propagation import hybrid_channel
+
+    net = SimNetwork(foyer3, seed=1)
+    channel = hybrid_channel(foyer3, np.random.default_rng(0))
+    channel.config = dataclasses.replace(channel.config, diffraction=False)
+    for node in net._nodes.values():
+        delays, amps = image_paths(node.tx, node.rx, net.walls, 2)
+        for r in range(2):
+            expected = np.sort(delays[r][amps[r] != 0])
+            paths = channel.paths(
+                AntennaArray(
+                    position=node.tx.position, yaw=node.tx.boresight, pattern=OmniPattern()
+                ),
+                AntennaArray(
+                    position=node.rx.position[r : r + 1],
+                    yaw=node.rx.boresight[r : r + 1],
+                    pattern=OmniPattern(),
+                ),
+                scatterers=False,
+            )
+            np.testing.assert_allclose(np.sort(paths.delay), expected, rtol=0, atol=1e-15)
+
+
+def test_hybrid_static_response_adds_scatterer_energy(foyer3) -> None:  # type: ignore[no-untyped-def]
+    data = foyer3.model_dump()
+    data["channel"]["n_scatterers"] = 0  # the same model as pure ray tracing
+    traced = SimNetwork(parse_scenario(data), seed=2)
+    hybrid = SimNetwork(foyer3, seed=2)
+    for node in ("bat1", "bat6"):  # in the foyer, and behind the brick partition
+        rt, hyb = traced.static_response(node), hybrid.static_response(node)
+        # Same direct coupling (the strongest sample), more energy in the multipath tail.
+        assert np.argmax(np.abs(hyb[0])) == np.argmax(np.abs(rt[0]))
+        late = slice(200, 1200)  # 8.6 m to 51 m of bistatic range
+        assert np.sum(hyb[:, late] ** 2) > 1.2 * np.sum(rt[:, late] ** 2)

@@ -209,8 +209,11 @@ class ToaEstimator(ABC):
         self._complex = bool(complex_input)
         # a real signal of bandwidth B has 2 B independent samples per second
         self._independence = min(1.0, (1.0 if complex_input else 2.0) * self._bandwidth_ratio)
-        sigma = _noise(env, self._guard(), complex_input)
-        return self._estimate(env, sigma)
+        # silent rows (all zero) and samples far above the noise take logs of 0 and exps
+        # of large numbers: the limits (-inf, 0, 1) are the right values
+        with np.errstate(divide="ignore", over="ignore", under="ignore", invalid="ignore"):
+            sigma = _noise(env, self._guard(), complex_input)
+            return self._estimate(env, sigma)
 
     @abstractmethod
     def _estimate(self, env: FloatArray, sigma: FloatArray) -> ToaEstimate:

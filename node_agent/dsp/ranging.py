@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.signal import hilbert
 
 from .band_filter import BandMatchedFilter
 from .geometry import SPEED_OF_LIGHT, RadarParams
@@ -118,9 +119,12 @@ class FirstPathRanger:
             if self.method == "adaptive"
             else self._shape_toa.estimate_envelope(env, complex_input=is_complex)
         )
+        # the shape features need the envelope, not a real signal's rectified oscillation:
+        # the analytic signal's magnitude, whose noise is Rayleigh with the same sigma
+        shape_env = env if is_complex else np.abs(hilbert(y.astype(np.float64), axis=1))
         with np.errstate(divide="ignore", over="ignore", under="ignore", invalid="ignore"):
             feats = channel_features(
-                env,
+                shape_env,
                 shape_est.sigma,
                 shape_est.index,
                 fs=self.radar.fs,

@@ -133,6 +133,25 @@ def cmd_track(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_ranging(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from node_agent.offline import range_recording
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    out = _out_path(args.out)
+    size = src.stat().st_size
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("ranging", total=size)
+        stats = range_recording(
+            src, out, method=args.method, progress=lambda n: progress.advance(task, n)
+        )
+    print(json.dumps({"out": str(out), "method": args.method, **stats.as_dict()}))
+    return 0
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from fusion_center.offline import evaluate_files
 
@@ -358,6 +377,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.set_defaults(func=cmd_track)
 
+    r = sub.add_parser("ranging", help="first-path range and LOS/NLOS of every impulse response")
+    r.add_argument("recording", help="input MCAP recording")
+    r.add_argument("--out", required=True, help="output ranges JSONL")
+    r.add_argument(
+        "--method",
+        choices=("mpd", "threshold", "adaptive", "peak"),
+        default="adaptive",
+        help="ToA estimator: maximum probability of detection (eq. 4-5), fixed or adaptive "
+        "threshold, strongest peak",
+    )
+    r.set_defaults(func=cmd_ranging)
+
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
     e.add_argument("--tracks", required=True, help="tracks JSONL from 'uwbnet track'")
@@ -433,6 +464,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that are the user's input, reported as one line."""
     from fusion_center.offline import TrackingError
     from node_agent.drivers.base import DriverError
+    from node_agent.offline import RangingError
     from protocol import ProtocolError
     from sim_nodes.scene import ScenarioError
     from uwbnet.config import ConfigError
@@ -443,6 +475,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ProtocolError,
         ScenarioError,
         TrackingError,
+        RangingError,
         DriverError,
         OSError,
     )

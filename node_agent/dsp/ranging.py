@@ -1,0 +1,142 @@
+"""Per-impulse-response ranging: first-path range and LOS/NLOS decision of every row.
+
+The chain of ``uwbnet ranging``: matched filter to the band (when it gains at least
+``min_filter_gain_db``), envelope, first path by the chosen ToA estimator
+(:mod:`node_agent.dsp.toa`), range :math:`r = c (t_0 + \\hat\\tau)` (the bistatic path length
+of the first path, PROTOCOL.md), and the per-link LOS/NLOS decision from the envelope's
+shape (:mod:`node_agent.dsp.nlos`). The shape features always use the adaptive-threshold
+first path, so the LOS decision does not change with the ranging method.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.signal import hilbert
+
+from .band_filter import BandMatchedFilter
+from .geometry import SPEED_OF_LIGHT, RadarParams
+from .nlos import DEFAULT_CLASSIFIER, FEATURES, LogisticNlosClassifier, channel_features
+from .toa import AdaptiveThresholdToaEstimator, envelope, make_toa_estimator
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class RangingResult:
+    """First-path ranges and LOS decisions of the rows of one impulse-response matrix.
+
+    Attributes
+    ----------
+    range : ndarray, float64, shape (rows,)
+        First-path bistatic path length, m; NaN where no path was found.
+    toa : ndarray, float64, shape (rows,)
+        First-path delay after sample 0, s.
+    los : ndarray, bool, shape (rows,)
+        LOS decision of each row.
+    nlos_probability : ndarray, float64, shape (rows,)
+    snr_db : ndarray, float64, shape (rows,)
+        First path's envelope over the noise sigma, dB.
+    quality : ndarray, float64, shape (rows,)
+        The ToA estimator's quality figure in [0, 1].
+    features : ndarray, float64, shape (rows, len(nlos.FEATURES))
+    """
+
+    range: FloatArray
+    toa: FloatArray
+    los: npt.NDArray[np.bool_]
+    nlos_probability: FloatArray
+    snr_db: FloatArray
+    quality: FloatArray
+    features: FloatArray
+
+
+class FirstPathRanger:
+    """Range and classify every row of an impulse-response matrix.
+
+    Parameters
+    ----------
+    radar : RadarParams
+        Sampling, window start ``t0``, band and carrier (``node_info.radar``).
+    method : str
+        ToA estimator: ``mpd``, ``threshold``, ``adaptive`` or ``peak``.
+    classifier : LogisticNlosClassifier
+        LOS/NLOS rule; the simulator-trained default when omitted.
+    min_filter_gain_db : float or None
+        Matched filtering runs when its gain reaches this (dB); None never filters.
+    """
+
+    def __init__(
+        self,
+        radar: RadarParams,
+        method: str = "mpd",
+        classifier: LogisticNlosClassifier | None = None,
+        min_filter_gain_db: float | None = 1.0,
+    ) -> None:
+        self.radar = radar
+        self.method = method
+        self._toa = make_toa_estimator(method, radar)
+        self._shape_toa = AdaptiveThresholdToaEstimator(radar)
+        self.classifier = classifier if classifier is not None else DEFAULT_CLASSIFIER
+        self._min_gain = min_filter_gain_db
+        self._filters: dict[bool, BandMatchedFilter | None] = {}
+
+    def _filter(self, is_complex: bool) -> BandMatchedFilter | None:
+        if is_complex not in self._filters:
+            band = None
+            if self._min_gain is not None:
+                band = BandMatchedFilter(self.radar, complex_input=is_complex)
+                band = band if band.gain_db >= self._min_gain else None
+            self._filters[is_complex] = band
+        return self._filters[is_complex]
+
+    def process(self, h: npt.NDArray) -> RangingResult:
+        """Range and classify each row of ``h`` (float32 or complex64, shape (rows, n))."""
+        if h.ndim != 2 or h.shape[1] != self.radar.n or h.shape[1] < 3:
+            raise ValueError(f"h has shape {h.shape}, expected (rows, {self.radar.n})")
+        if not np.all(np.isfinite(h)):
+            raise ValueError("h holds NaN or Inf")
+        if h.shape[0] == 0:
+            empty = np.empty(0)
+            return RangingResult(
+                range=empty,
+                toa=empty,
+                los=np.empty(0, dtype=bool),
+                nlos_probability=empty,
+                snr_db=empty,
+                quality=empty,
+                features=np.empty((0, len(FEATURES))),
+            )
+        is_complex = h.dtype.kind == "c"
+        band = self._filter(is_complex)
+        y = band.apply(h) if band is not None else h
+        env = envelope(y)
+        est = self._toa.estimate_envelope(env, complex_input=is_complex)
+        shape_est = (
+            est
+            if self.method == "adaptive"
+            else self._shape_toa.estimate_envelope(env, complex_input=is_complex)
+        )
+        # the shape features need the envelope, not a real signal's rectified oscillation:
+        # the analytic signal's magnitude, whose noise is Rayleigh with the same sigma
+        shape_env = env if is_complex else np.abs(hilbert(y.astype(np.float64), axis=1))
+        with np.errstate(divide="ignore", over="ignore", under="ignore", invalid="ignore"):
+            feats = channel_features(
+                shape_env,
+                shape_est.sigma,
+                shape_est.index,
+                fs=self.radar.fs,
+                bandwidth=self.radar.bandwidth,
+            )
+            p_nlos = self.classifier.nlos_probability(feats)
+        return RangingResult(
+            range=SPEED_OF_LIGHT * (self.radar.t0 + est.toa),
+            toa=est.toa,
+            los=p_nlos < 0.5,
+            nlos_probability=p_nlos,
+            snr_db=est.snr_db,
+            quality=est.quality,
+            features=feats,
+        )

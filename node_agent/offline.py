@@ -64,7 +64,7 @@ def range_recording(
     path: str | os.PathLike[str],
     out: str | os.PathLike[str],
     *,
-    method: str = "mpd",
+    method: str = "adaptive",
     progress: Callable[[int], None] | None = None,
 ) -> RangingStats:
     """Range every impulse response of a recording into a JSONL file.

@@ -71,7 +71,7 @@ class FirstPathRanger:
     def __init__(
         self,
         radar: RadarParams,
-        method: str = "mpd",
+        method: str = "adaptive",
         classifier: LogisticNlosClassifier | None = None,
         min_filter_gain_db: float | None = 1.0,
     ) -> None:

@@ -20,9 +20,8 @@ from fusion_center.core import FusionCore, FusionCoreConfig, tracks_json
 from fusion_center.tracking.base import Tracker
 from node_agent.core import NodeConfigError, NodeCore, detections_message
 from node_agent.dsp.pipeline import NodeDspConfig
-from protocol import Detections, Ir, NodeInfo, ProtocolError, Truth, decode, keys
-from protocol.errors import KeyExprError
-from protocol.recording import RecordedMessage, read_recording
+from protocol import Detections, Ir, NodeInfo, ProtocolError, Truth, decode
+from protocol.recording import read_recording
 
 log = logging.getLogger(__name__)
 
@@ -43,15 +42,6 @@ def make_tracker(method: str) -> Tracker:
 
         return FusedImageTracker()
     raise TrackingError(f"unknown tracking method {method!r} (gmphd, image)")
-
-
-def _kind(rec: RecordedMessage) -> str | None:
-    if rec.kind is not None:
-        return rec.kind
-    try:
-        return keys.parse_key(rec.topic).kind
-    except KeyExprError:
-        return None
 
 
 @dataclasses.dataclass(slots=True)
@@ -104,7 +94,7 @@ def track_recording(
                 stats.messages += 1
                 if progress is not None:
                     progress(len(rec.payload))
-                kind = _kind(rec)
+                kind = rec.message_kind
                 if kind not in ("node_info", "ir", "detections"):
                     continue
                 try:
@@ -166,7 +156,7 @@ def read_truth(path: str | os.PathLike[str]) -> TruthSeries:
     """The ``truth`` messages of a recording as ``(t, ids (m,), xy (m, 2))``, in time order."""
     series: TruthSeries = []
     for rec in read_recording(path):
-        if _kind(rec) != "truth":
+        if rec.message_kind != "truth":
             continue
         try:
             msg = Truth.from_wire(rec.payload)

@@ -20,9 +20,8 @@ from pathlib import Path
 
 from node_agent.core import NodeConfigError, radar_params
 from node_agent.dsp.ranging import FirstPathRanger
-from protocol import Ir, NodeInfo, ProtocolError, decode, keys
-from protocol.errors import KeyExprError
-from protocol.recording import RecordedMessage, read_recording
+from protocol import Ir, NodeInfo, ProtocolError, decode
+from protocol.recording import read_recording
 
 log = logging.getLogger(__name__)
 
@@ -45,15 +44,6 @@ class RangingStats:
 
     def as_dict(self) -> dict[str, int]:
         return dataclasses.asdict(self)
-
-
-def _kind(rec: RecordedMessage) -> str | None:
-    if rec.kind is not None:
-        return rec.kind
-    try:
-        return keys.parse_key(rec.topic).kind
-    except KeyExprError:
-        return None
 
 
 def _number(x: float) -> float | None:
@@ -86,7 +76,7 @@ def range_recording(
                 stats.messages += 1
                 if progress is not None:
                     progress(len(rec.payload))
-                kind = _kind(rec)
+                kind = rec.message_kind
                 if kind not in ("node_info", "ir"):
                     continue
                 try:

@@ -17,7 +17,8 @@ from typing import IO, Self
 
 from mcap.writer import CompressionType, Writer
 
-from protocol.errors import RecordingError
+from protocol.errors import KeyExprError, RecordingError
+from protocol.keys import parse_key
 from protocol.messages import KINDS, Message
 from protocol.units import seconds_to_ns
 
@@ -149,6 +150,17 @@ class RecordedMessage:
     @property
     def t(self) -> float:
         return self.log_time / 1e9
+
+    @property
+    def message_kind(self) -> str | None:
+        """The message kind: from the channel's schema, else from the topic's key expression
+        (recordings from other tools may carry no schema); None when neither tells."""
+        if self.kind is not None:
+            return self.kind
+        try:
+            return parse_key(self.topic).kind
+        except KeyExprError:
+            return None
 
 
 def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:

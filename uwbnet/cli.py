@@ -12,7 +12,7 @@ import logging
 import math
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -114,10 +114,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_track(args: argparse.Namespace) -> int:
+def _run_offline(
+    args: argparse.Namespace, label: str, run: Callable[..., Any], **extra: Any
+) -> int:
+    """Run an offline pass ``run(src, out, method=..., progress=...)`` over a recording,
+    with a progress bar on a terminal; print its counts (and ``extra``) as JSON."""
     from rich.progress import Progress
-
-    from fusion_center.offline import track_recording
 
     src = Path(args.recording)
     if not src.is_file():
@@ -125,31 +127,22 @@ def cmd_track(args: argparse.Namespace) -> int:
     out = _out_path(args.out)
     size = src.stat().st_size
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task("tracking", total=size)
-        stats = track_recording(
-            src, out, method=args.method, progress=lambda n: progress.advance(task, n)
-        )
-    print(json.dumps({"out": str(out), **stats.as_dict()}))
+        task = progress.add_task(label, total=size)
+        stats = run(src, out, method=args.method, progress=lambda n: progress.advance(task, n))
+    print(json.dumps({"out": str(out), **extra, **stats.as_dict()}))
     return 0
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    from fusion_center.offline import track_recording
+
+    return _run_offline(args, "tracking", track_recording)
 
 
 def cmd_ranging(args: argparse.Namespace) -> int:
-    from rich.progress import Progress
-
     from node_agent.offline import range_recording
 
-    src = Path(args.recording)
-    if not src.is_file():
-        raise CliError(f"no such recording: {src}")
-    out = _out_path(args.out)
-    size = src.stat().st_size
-    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
-        task = progress.add_task("ranging", total=size)
-        stats = range_recording(
-            src, out, method=args.method, progress=lambda n: progress.advance(task, n)
-        )
-    print(json.dumps({"out": str(out), "method": args.method, **stats.as_dict()}))
-    return 0
+    return _run_offline(args, "ranging", range_recording, method=args.method)
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

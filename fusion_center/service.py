@@ -12,6 +12,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -98,6 +99,9 @@ class FusionService:
         self._seq = {"tracks": 0, "schedule": 0}
         self._want_info: set[str] = set()
         self._asked: dict[str, float] = {}
+        #: Recent local position estimates ``(t, positions (k, 2), cov (k, 2, 2))`` for viewers
+        #: (the web view's moving-target image); bounded, the oldest fall off unread.
+        self.recent_estimates: deque[tuple[float, Any, Any]] = deque(maxlen=4096)
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -154,6 +158,10 @@ class FusionService:
         with self._lock:
             return self.latest, {k: dataclasses.replace(v) for k, v in self.health.items()}
 
+    def node_infos(self) -> dict[str, NodeInfo]:
+        """A copy of the known node descriptions (safe to call from another thread)."""
+        return dict(self.core.nodes)
+
     # -- worker ----------------------------------------------------------------------------
 
     def _run(self) -> None:
@@ -187,6 +195,8 @@ class FusionService:
                 h.detections += 1
                 h.last_det_t = msg.t
                 h.latency_ms = (self.clock() - msg.t) * 1e3
+            if msg.positions is not None and msg.positions.shape[0]:
+                self.recent_estimates.append((msg.t, msg.positions, msg.cov))
             self._publish(self.core.add_detections(msg))
         elif leaf == "info" and isinstance(msg, NodeInfo):
             self._add_node(msg)

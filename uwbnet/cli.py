@@ -72,8 +72,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     from uwbnet.demo import DemoConfig, run_demo
 
-    if args.web is not None:
-        raise CliError("--web: the live web view is not built yet (issue 7); use the terminal view")
     scenario = _load_scenario(args.scenario)
     record = str(_out_path(args.record)) if args.record else None
     console = Console()
@@ -85,6 +83,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
             net=args.net,
             method=args.method,
             record=record,
+            web=args.web,
+            web_host=args.web_host,
         ),
         console,
     )
@@ -341,6 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--duration", type=_positive, help="seconds to run (default: until Ctrl-C)")
     d.add_argument("--seed", type=int, default=1, help="simulation seed")
     d.add_argument("--web", type=_port, help="serve the live web view on this port")
+    d.add_argument("--web-host", default="127.0.0.1", help="address of the web view (0.0.0.0: all)")
     d.add_argument("--record", help="also record the network to this MCAP file")
     d.add_argument("--net", default="demo", help="network name in the key expressions")
     d.add_argument(

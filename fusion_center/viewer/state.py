@@ -184,8 +184,9 @@ class LiveViewModel:
                     "drops": st.dropped if st else None,
                     "late": st.late_slots if st else None,
                     "acquired": st.acquired if st else None,
-                    "latency_ms": _r(h.latency_ms, 1),
-                    "cpu": _r(st.cpu, 3) if st else None,
+                    # A lost node's last latency and CPU load are history, not health.
+                    "latency_ms": _r(h.latency_ms, 1) if h.alive else None,
+                    "cpu": _r(st.cpu, 3) if st and h.alive else None,
                 }
             )
         return {

@@ -217,7 +217,10 @@ function tables(st) {
     ? (view.arrivals.length - 1) / ((view.arrivals[view.arrivals.length - 1] - view.arrivals[0]) / 1000)
     : 0;
   document.getElementById("rate").textContent = `${view.rate.toFixed(1)} Hz`;
-  document.getElementById("clock").textContent = `t = ${fmt(st.t, 2)} s`;
+  // Network time is wall-clock time in a deployment (shown as such), scenario seconds otherwise.
+  document.getElementById("clock").textContent = st.t > 1e9
+    ? new Date(st.t * 1000).toISOString().slice(11, 22) + " UTC"
+    : `t = ${fmt(st.t, 2)} s`;
   const lost = st.nodes.filter((n) => n.state === "lost").length;
   document.getElementById("summary").textContent =
     `${st.tracks.length} tracks, ${st.nodes.length} nodes (${lost} lost)` +

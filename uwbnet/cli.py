@@ -208,8 +208,13 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     cfg = load_config(RecordFile, args.config, _zenoh_overrides(args))
     out = _out_path(args.out)
+    walls = None
+    if args.floor_plan:
+        from fusion_center.viewer.state import floor_plan
+
+        walls = floor_plan(_load_scenario(args.floor_plan))
     with stop_on_signals() as stop:
-        result = run_record(cfg, out, stop, args.duration or math.inf)
+        result = run_record(cfg, out, stop, args.duration or math.inf, walls=walls)
     print(json.dumps(result))
     return 0
 
@@ -407,6 +412,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_zenoh_args(r, config_required=False)
     r.add_argument("--out", required=True, help="output MCAP file")
     r.add_argument("--duration", type=_positive, help="seconds to record (default: until stopped)")
+    r.add_argument(
+        "--floor-plan", metavar="SCENARIO", help="walls of this scenario on the /viz/walls channel"
+    )
     r.set_defaults(func=cmd_record)
 
     rp = sub.add_parser("replay", help="republish a recording's payloads unchanged")

@@ -208,7 +208,11 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
         recorder = None
         if config.record:
             rec_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
-            recorder = NetworkRecorder(rec_session, config.net, config.record)
+            from fusion_center.viewer.state import floor_plan
+
+            recorder = NetworkRecorder(
+                rec_session, config.net, config.record, walls=floor_plan(config.scenario)
+            )
             recorder.start()
             stack.callback(recorder.stop)
         # The nodes run in their own process (spawned: zenoh sessions do not survive fork),

@@ -311,16 +311,21 @@ def _start_web(fusion: Any, cfg: FusionFile) -> Callable[[], None]:
 
 
 def run_record(
-    cfg: RecordFile, out: Path, stop: threading.Event, duration: float
+    cfg: RecordFile,
+    out: Path,
+    stop: threading.Event,
+    duration: float,
+    walls: list[list[float]] | None = None,
 ) -> dict[str, Any]:
-    """Record network ``cfg.net`` into ``out`` until stopped or ``duration`` s have passed."""
+    """Record network ``cfg.net`` into ``out`` until stopped or ``duration`` s have passed
+    (with Foxglove ``/viz`` channels, ``walls`` as their floor plan)."""
     from fusion_center.recorder import NetworkRecorder
 
     session = open_session(lambda: zenoh_config(cfg.zenoh, cfg.net), stop, "record")
     if session is None:
         return {"out": None, "messages": 0}
     with session:
-        recorder = NetworkRecorder(session, cfg.net, out)
+        recorder = NetworkRecorder(session, cfg.net, out, walls=walls)
         recorder.start()
         log.info("recording network %s to %s", cfg.net, out)
         try:

@@ -286,6 +286,32 @@ def cmd_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from uwbnet import plot_cmd
+
+    out = _out_path(args.out)
+    if args.plot_command == "tracks":
+        for p in (args.recording, args.tracks):
+            if not Path(p).is_file():
+                raise CliError(f"no such file: {p}")
+        scenario = _load_scenario(args.scenario) if args.scenario else None
+        result = plot_cmd.plot_tracks(Path(args.recording), Path(args.tracks), out, scenario)
+    elif args.plot_command == "image":
+        if not Path(args.npz).is_file():
+            raise CliError(f"no such file: {args.npz}")
+        result = plot_cmd.plot_image(Path(args.npz), out)
+    elif args.plot_command == "channel":
+        if not Path(args.recording).is_file():
+            raise CliError(f"no such recording: {args.recording}")
+        result = plot_cmd.plot_channel(
+            Path(args.recording), args.node, out, rx=args.rx, max_range=args.max_range
+        )
+    else:
+        result = plot_cmd.plot_topology(_load_scenario(args.scenario), out)
+    print(json.dumps(result))
+    return 0
+
+
 def _rate(value: str) -> float:
     if value in ("inf", "max"):
         return math.inf
@@ -430,6 +456,25 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--out", required=True, help="output MCAP file")
     rc.set_defaults(func=cmd_recover)
 
+    pl = sub.add_parser("plot", help="figures (PNG/SVG/PDF): tracks, image, channel, topology")
+    psub = pl.add_subparsers(dest="plot_command", required=True, parser_class=_Parser)
+    pt = psub.add_parser("tracks", help="tracks vs the recording's truth")
+    pt.add_argument("recording", help="MCAP recording with truth messages")
+    pt.add_argument("tracks", help="tracks JSONL ('uwbnet track')")
+    pt.add_argument("--scenario", help="draw this scenario's walls")
+    pi = psub.add_parser("image", help="an imaging result (.npz with img, x0, y0, dx, dy)")
+    pi.add_argument("npz", help="image .npz (PROTOCOL.md image fields)")
+    pc = psub.add_parser("channel", help="radargram of a node's impulse responses")
+    pc.add_argument("recording", help="MCAP recording with ir messages")
+    pc.add_argument("--node", required=True, help="node id")
+    pc.add_argument("--rx", help="receiving antenna (default: the first)")
+    pc.add_argument("--max-range", type=_positive, default=30.0, help="bistatic range shown, m")
+    po = psub.add_parser("topology", help="deployment layout of a scenario")
+    po.add_argument("scenario", help="shipped scenario name or TOML path")
+    for sp in (pt, pi, pc, po):
+        sp.add_argument("--out", required=True, help="output figure (.png, .svg or .pdf)")
+        sp.set_defaults(func=cmd_plot)
+
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
     b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
@@ -470,8 +515,10 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from protocol import ProtocolError
     from sim_nodes.scene import ScenarioError
     from uwbnet.config import ConfigError
+    from uwbnet.plot_cmd import PlotError
 
     return (
+        PlotError,
         CliError,
         ConfigError,
         ProtocolError,

@@ -193,12 +193,20 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
     }
 
 
+def bench_web(seed: int = 0) -> dict[str, Any]:
+    """The live web view at 100 sensors / 30 tracks (``uwbnet/bench_web.py``)."""
+    from uwbnet.bench_web import bench_web as run
+
+    return run(seed)
+
+
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "channel": bench_channel,
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
     "sim": bench_sim,
+    "web": bench_web,
 }
 
 __all__ = ["BENCHES"]

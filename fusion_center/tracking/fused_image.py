@@ -272,6 +272,7 @@ def add_gaussians(
     p: FloatArray,
     cov: FloatArray,
     window_sigmas: float = 3.0,
+    weights: FloatArray | None = None,
 ) -> None:
     """Add the sum term of eq. (23) of the CoLOR chapter to ``img`` in place.
 
@@ -290,6 +291,8 @@ def add_gaussians(
     cov : ndarray, float64, shape (s, 2, 2)
         Their covariances, m².
     window_sigmas : float
+    weights : ndarray, float64, shape (s,), optional
+        Factor on each Gaussian (e.g. the forgetting an estimate has already undergone).
     """
     if p.shape[0] == 0:
         return
@@ -307,6 +310,8 @@ def add_gaussians(
     det = a * d - b * b
     maha = (d * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
     vals = np.exp(-0.5 * maha) / (2.0 * math.pi * np.sqrt(det))
+    if weights is not None:
+        vals = vals * weights[:, None, None]
     rows, cols = np.broadcast_arrays(rows, cols)
     ok = (rows >= 0) & (rows < img.shape[0]) & (cols >= 0) & (cols < img.shape[1])
     np.add.at(img, (rows[ok], cols[ok]), vals[ok])

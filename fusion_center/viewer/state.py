@@ -66,6 +66,7 @@ class LiveViewConfig:
     Parameters
     ----------
     tail_seconds : length of a track's tail, s.
+    tail_step : spacing of a tail's points, s (the page draws a line through them).
     rate_window : window over which a node's detection rate is averaged, s.
     resolution : pixel size of the moving-target image, m.
     forgetting_per_s : forgetting of the moving-target image per second; eq. (23)'s ``λ`` per
@@ -73,14 +74,18 @@ class LiveViewConfig:
     extent_std : person extent added to each estimate's covariance, m (as the fused-image
         tracker does).
     image_max_age : an ``image`` message older than this (s, network time) is no longer shown.
+    image_max_pixels : the moving-target image's longest side, pixels: over a large site the
+        pixels grow beyond ``resolution`` (the page scales the image anyway).
     """
 
     tail_seconds: float = 3.0
+    tail_step: float = 0.2
     rate_window: float = 2.0
     resolution: float = 0.1
     forgetting_per_s: float = 1e-5
     extent_std: float = 0.2
     image_max_age: float = 10.0
+    image_max_pixels: int = 160
 
 
 def _r(x: float, nd: int = 3) -> float | None:
@@ -107,10 +112,13 @@ class LiveViewModel:
         self.config = config or LiveViewConfig()
         self.walls = [[float(v) for v in w] for w in walls]
         self._tails: dict[int, deque[tuple[float, float, float]]] = {}
+        self._static: dict[str, tuple[NodeInfo | None, dict[str, Any]]] = {}
         self._det_hist: dict[str, deque[tuple[float, int]]] = {}
         self._img: np.ndarray | None = None
         self._img_x0 = self._img_y0 = 0.0
         self._img_t: float | None = None
+        self._img_res = self.config.resolution
+        self._pending: list[tuple[float, np.ndarray, np.ndarray | None]] = []
         self._bounds: list[float] | None = None
         self.updates = 0
 
@@ -139,6 +147,10 @@ class LiveViewModel:
         ``now`` is network time (s): it ages tails and rates.
         """
         self.updates += 1
+        # Estimates wait for the next image() call (the image is refreshed less often).
+        self._pending.extend(snap.estimates)
+        if len(self._pending) > 20000:
+            del self._pending[: len(self._pending) - 20000]
         out = snap.output
         tracks = []
         live_ids = set()
@@ -146,8 +158,8 @@ class LiveViewModel:
             for tr in out.tracks:
                 live_ids.add(tr.id)
                 tail = self._tails.setdefault(tr.id, deque())
-                if not tail or tail[-1][0] < out.t:
-                    tail.append((out.t, tr.x, tr.y))
+                if not tail or out.t - tail[-1][0] >= self.config.tail_step:
+                    tail.append((out.t, round(float(tr.x), 2), round(float(tr.y), 2)))
                 while tail and tail[0][0] < out.t - self.config.tail_seconds:
                     tail.popleft()
                 tracks.append(
@@ -158,7 +170,13 @@ class LiveViewModel:
                         "vx": _r(tr.vx),
                         "vy": _r(tr.vy),
                         "w": _r(tr.w),
-                        "tail": [[_r(x, 2), _r(y, 2)] for _, x, y in tail],
+                        # The sampled tail, then the current position.
+                        "tail": [[x, y] for _, x, y in tail]
+                        + (
+                            [[round(float(tr.x), 2), round(float(tr.y), 2)]]
+                            if tail[-1][0] != out.t
+                            else []
+                        ),
                     }
                 )
         for tid in list(self._tails):
@@ -175,10 +193,7 @@ class LiveViewModel:
                 state = "nlos"
             nodes.append(
                 {
-                    "id": node,
-                    "role": info.role if info else None,
-                    "pose": [_r(v) for v in info.pose] if info else None,
-                    "boresight": _r(_boresight(info)) if info else None,
+                    **self._node_static(node, info),
                     "state": state,
                     "rate": _r(self._rate(node, now, h.detections), 1),
                     "drops": st.dropped if st else None,
@@ -198,6 +213,20 @@ class LiveViewModel:
             "nodes": nodes,
             "counters": dict(snap.counters),
         }
+
+    def _node_static(self, node: str, info: NodeInfo | None) -> dict[str, Any]:
+        """id, role, pose and boresight of a node, recomputed only when its info changes."""
+        cached = self._static.get(node)
+        if cached is not None and cached[0] is info:
+            return cached[1]
+        doc = {
+            "id": node,
+            "role": info.role if info else None,
+            "pose": [_r(v) for v in info.pose] if info else None,
+            "boresight": _r(_boresight(info)) if info else None,
+        }
+        self._static[node] = (info, doc)
+        return doc
 
     def _rate(self, node: str, now: float, count: int) -> float:
         """Detection messages per second over the last ``rate_window`` s."""
@@ -237,35 +266,43 @@ class LiveViewModel:
         self._accumulate(now, snap)
         if self._img is None:
             return None
-        res = self.config.resolution
+        res = self._img_res
         return _image_doc(self._img, self._img_x0, self._img_y0, res, res, "eq23", now)
 
     def _accumulate(self, now: float, snap: ViewInput) -> None:
         """Eq. (23) with the forgetting applied per elapsed second, over the view's extent."""
         cfg = self.config
+        estimates, self._pending = self._pending, []
         if self._img is None:
             if not snap.infos:
                 return
             b = self.bounds(snap.infos)
-            nx = math.ceil((b[1] - b[0]) / cfg.resolution) + 1
-            ny = math.ceil((b[3] - b[2]) / cfg.resolution) + 1
+            side = max(b[1] - b[0], b[3] - b[2])
+            res = self._img_res = max(cfg.resolution, side / cfg.image_max_pixels)
+            nx = math.ceil((b[1] - b[0]) / res) + 1
+            ny = math.ceil((b[3] - b[2]) / res) + 1
             self._img = np.zeros((ny, nx))
             self._img_x0, self._img_y0 = b[0], b[2]
         if self._img_t is not None and now > self._img_t:
             self._img *= cfg.forgetting_per_s ** (now - self._img_t)
         self._img_t = now
-        if not snap.estimates:
+        if not estimates:
             return
-        pos = [np.asarray(e[1], dtype=np.float64).reshape(-1, 2) for e in snap.estimates]
+        pos = [np.asarray(e[1], dtype=np.float64).reshape(-1, 2) for e in estimates]
         p = np.concatenate(pos)
         covs = [
             np.asarray(c, dtype=np.float64).reshape(-1, 2, 2)
             if c is not None
             else np.broadcast_to(np.eye(2) * 0.01, (np.asarray(pos).reshape(-1, 2).shape[0], 2, 2))
-            for _, pos, c in snap.estimates
+            for _, pos, c in estimates
         ]
         cov = np.concatenate(covs) + cfg.extent_std**2 * np.eye(2)
-        add_gaussians(self._img, self._img_x0, self._img_y0, cfg.resolution, p, cov)
+        # Each estimate has already been forgotten for the time since it was made.
+        age = np.concatenate(
+            [np.full(len(x), now - e[0]) for x, e in zip(pos, estimates, strict=True)]
+        )
+        w = cfg.forgetting_per_s ** np.clip(age, 0.0, None)
+        add_gaussians(self._img, self._img_x0, self._img_y0, self._img_res, p, cov, weights=w)
 
 
 def _boresight(info: NodeInfo) -> float:

@@ -112,3 +112,32 @@ def test_page_shows_foyer3_tracks_moving_and_marks_a_killed_node_lost(
         p = next(p for p in procs.procs if str(tmp_path / f"{name}.toml") in p.args)
         assert procs.stop(p) == 0, procs.log(name)
     assert "Traceback" not in procs.log("fusion") + procs.log("sim")
+
+
+def test_page_reconnects_by_itself_after_the_server_restarts(tmp_path):
+    """The fusion center restarts: the page says so and picks the stream up again, unaided."""
+    from fusion_center.viewer.server import WebViewConfig, WebViewServer
+    from uwbnet.bench_web import SyntheticFusion
+
+    server = WebViewServer(SyntheticFusion(3), config=WebViewConfig(port=0))
+    server.start()
+    port = server.port
+    try:
+        with browser_page(tmp_path) as page:
+            page.goto(server.url)
+            page.wait_for_function("window.uwbnetView.updates > 5")
+            # 100 sensors and 30 tracks on the page.
+            assert page.locator("#nodes tbody tr").count() == 100
+            assert page.evaluate("window.uwbnetView.state.tracks.length") == 30
+            server.stop()
+            page.wait_for_selector('#conn[data-state="reconnecting"]', timeout=10_000)
+            n = page.evaluate("window.uwbnetView.updates")
+            server = WebViewServer(SyntheticFusion(3), config=WebViewConfig(port=port))
+            server.start()
+            page.wait_for_function(f"window.uwbnetView.updates > {n + 10}", timeout=15_000)
+            assert page.locator("#conn").get_attribute("data-state") == "live"
+            shot = _artefact(tmp_path, "webview-100-sensors-30-tracks.png")
+            page.screenshot(path=str(shot))
+            print(f"screenshot: {shot}")
+    finally:
+        server.stop()

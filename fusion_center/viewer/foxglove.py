@@ -124,6 +124,8 @@ class FoxgloveScene:
     tail_seconds : length of a track's tail, s.
     static_period : walls and sensors are re-sent this often (s), so that a viewer that seeks
         into the middle of a recording still shows them.
+    period : tracks and truth are written at most this often (s): a 3-D panel needs no more
+        than 10 Hz, and the recorder thread shares the fusion process.
     """
 
     def __init__(
@@ -133,10 +135,12 @@ class FoxgloveScene:
         wall_height: float = 2.5,
         tail_seconds: float = 3.0,
         static_period: float = 1.0,
+        period: float = 0.1,
     ) -> None:
         self.walls = [[float(v) for v in w] for w in walls]
         self.wall_height, self.tail_seconds = wall_height, tail_seconds
-        self.static_period = static_period
+        self.static_period, self.period = static_period, period
+        self._last: dict[str, float] = {}
         self.infos: dict[str, NodeInfo] = {}
         self._tails: dict[int, deque[tuple[float, float, float]]] = {}
         self._last_static = -math.inf
@@ -149,9 +153,9 @@ class FoxgloveScene:
             self.infos[msg.src] = msg
             if changed:
                 out.append(("/viz/sensors", SCENE, self.sensors(msg.t)))
-        elif isinstance(msg, Tracks):
+        elif isinstance(msg, Tracks) and self._due("tracks", msg.t):
             out.append(("/viz/tracks", SCENE, self.tracks(msg)))
-        elif isinstance(msg, Truth):
+        elif isinstance(msg, Truth) and self._due("truth", msg.t):
             out.append(("/viz/truth", SCENE, self.truth(msg)))
         elif isinstance(msg, Image):
             out.append(("/viz/image", GRID, self.grid(msg)))
@@ -163,6 +167,12 @@ class FoxgloveScene:
             if self.infos and not isinstance(msg, NodeInfo):
                 out.append(("/viz/sensors", SCENE, self.sensors(t)))
         return out
+
+    def _due(self, stream: str, t: float) -> bool:
+        if t - self._last.get(stream, -math.inf) < self.period - 1e-9:
+            return False
+        self._last[stream] = t
+        return True
 
     def walls_update(self, t: float) -> dict[str, Any]:
         """``foxglove.SceneUpdate``: one box per wall segment (0.1 m thick)."""

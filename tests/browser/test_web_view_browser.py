@@ -68,10 +68,14 @@ def test_page_shows_foyer3_tracks_moving_and_marks_a_killed_node_lost(
     with browser_page(tmp_path) as page:
         page.goto(f"http://127.0.0.1:{port}/")
         # Three people walk in the foyer: three confirmed tracks within the warm-up.
-        page.wait_for_function(
-            "window.uwbnetView.state && window.uwbnetView.state.tracks.length >= 3",
-            timeout=45_000,
-        )
+        try:
+            page.wait_for_function(
+                "window.uwbnetView.state && window.uwbnetView.state.tracks.length >= 3",
+                timeout=60_000,
+            )
+        except Exception:
+            state = page.evaluate("window.uwbnetView.state")
+            raise AssertionError(f"no 3 tracks on the page in 60 s; last state {state}") from None
         assert page.locator("#conn").get_attribute("data-state") == "live"
         # Update rate seen by the page: >= 10 Hz.
         n0, t0 = page.evaluate("window.uwbnetView.updates"), time.monotonic()
@@ -93,6 +97,7 @@ def test_page_shows_foyer3_tracks_moving_and_marks_a_killed_node_lost(
         walls = page.evaluate("window.uwbnetView.scene.walls.length")
         assert walls >= 4
         assert page.evaluate("window.uwbnetView.image && window.uwbnetView.image.max") > 0
+        page.wait_for_selector('#nodes tr[data-node="bat6"][data-state="alive"]')
         alive = page.locator('#nodes tr[data-state="alive"]').count()
         assert alive == 6, page.locator("#nodes").inner_text()
         shot = _artefact(tmp_path, "webview-foyer3.png")

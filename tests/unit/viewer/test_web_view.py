@@ -103,3 +103,17 @@ def test_a_port_in_use_is_an_oserror_not_a_hang() -> None:
             b.start()
     finally:
         a.stop()
+
+
+def test_fusion_config_web_section(tmp_path) -> None:
+    from uwbnet.config import ConfigError, FusionFile, load_config
+
+    good = tmp_path / "f.toml"
+    good.write_text('[web]\nport = 0\nscenario = "foyer3"\n')
+    cfg = load_config(FusionFile, good, env={})
+    assert cfg.web is not None and cfg.web.port == 0 and cfg.web.rate == 15.0
+    assert load_config(FusionFile, None, env={}).web is None
+    bad = tmp_path / "b.toml"
+    bad.write_text("[web]\nport = 70000\n")
+    with pytest.raises(ConfigError, match=r"web\.port"):
+        load_config(FusionFile, bad, env={})

@@ -153,9 +153,11 @@ class RangingSimulator:
         _, delays, amps = cached
         delays = delays.copy()
         amps = amps.copy()
-        # the direct path: through the walls, slower inside them; the multipath goes round
+        # the direct path: through the walls, slower inside them; the 802.15.4a multipath
+        # delays are relative to the direct path (its excess delays them too), but it goes
+        # round the walls (not attenuated by them)
         amps[0] = abs(amps[0]) * link.transmission
-        delays[0] = link.excess / C * 1e9
+        delays = delays + link.excess / C * 1e9
         spread = self.config.reference_distance / max(link.distance, 0.1)
         return delays, amps * spread
 

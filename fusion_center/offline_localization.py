@@ -216,7 +216,7 @@ def evaluate_localization(
         return round(float(np.sqrt(np.mean(np.sum(np.square(e), axis=1)))), 4) if e else None
 
     return {
-        "rounds": n_rounds,
+        "evaluated_rounds": n_rounds,
         "rmse": rms(err),
         "fix_rmse": rms(fix_err),
         "fix_rate": round(n_fix / n_rounds, 4) if n_rounds else None,

@@ -5,6 +5,10 @@ through the eq. (6) test (:class:`~fusion_center.localization.nlos.MseNlosTest`)
 enter the snapshot estimator with their own range variance, NLOS anchors only with a large
 one (``nlos_std``: they still resolve the mirror ambiguity of two LOS anchors, but no longer
 pull the fix); the fix updates a position Kalman filter whose state is the published pose.
+Mitigation also gates single ranges against the track's prediction (beyond the chapter):
+the one range of a round further than ``gate`` standard deviations from the predicted distance
+enters that round with ``nlos_std`` (a LOS multipath outlier), without changing the anchor's
+LOS decision; with several such ranges the prediction is distrusted instead.
 Without mitigation every anchor enters with its LOS variance (the baseline).
 """
 
@@ -39,6 +43,7 @@ class LocalizerConfig:
     window : ranges per anchor kept for the test.
     test : the eq. (6) test.
     q : acceleration noise density of the position filter, m²/s³.
+    gate : innovation gate of a single range, standard deviations (0: off).
     """
 
     method: str = "taylor"
@@ -47,6 +52,7 @@ class LocalizerConfig:
     window: int = 30
     test: MseNlosTest = field(default_factory=MseNlosTest)
     q: float = 0.5
+    gate: float = 4.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -114,6 +120,29 @@ class RangingLocalizer:
             out[aid] = not self.config.test.is_nlos(arr[:, 0], arr[:, 1])
         return out
 
+    def _outliers(
+        self,
+        prior: tuple[FloatArray, FloatArray],
+        anchors: FloatArray,
+        r: FloatArray,
+        std: FloatArray,
+    ) -> npt.NDArray[np.bool_]:
+        """Ranges beyond the gate around the distance predicted by the track."""
+        state, cov = prior
+        xy = state[[0, 2]]
+        p = cov[np.ix_([0, 2], [0, 2])]
+        diff = xy - anchors
+        d = np.maximum(np.linalg.norm(diff, axis=1), 1e-6)
+        u = diff / d[:, None]
+        var = std**2 + np.einsum("ki,ij,kj->k", u, p, u)
+        z = np.abs(r - d) / np.sqrt(var)
+        out = np.zeros(r.size, bool)
+        # one outlier per round at most: when several ranges disagree with the prediction, the
+        # prediction is the likelier culprit (a track started on NLOS ranges), so trust the ranges
+        if np.sum(z > self.config.gate) == 1:
+            out[np.argmax(z)] = True
+        return out
+
     def step(self, t: float, links: dict[str, tuple[float, float]]) -> PoseResult:
         """One ranging round.
 
@@ -139,6 +168,8 @@ class RangingLocalizer:
         r = horizontal_ranges(r3, pos[:, 2] - self.height)
         prior = self.tracker.predict(t)
         initial = prior[0][[0, 2]] if prior is not None else None
+        if prior is not None and self.config.mitigate and self.config.gate > 0:
+            std = np.where(self._outliers(prior, pos[:, :2], r, std), self.config.nlos_std, std)
         fix = self.locator.locate(pos[:, :2], r, std, initial=initial)
         usable = fix.ok or (initial is not None and np.all(np.isfinite(fix.position)))
         if not self.tracker.initialised and not fix.ok:

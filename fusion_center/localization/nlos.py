@@ -12,6 +12,7 @@ is compared with the known LOS variance: NLOS is decided when
 :math:`N \\, \\mathrm{MSE} / \\sigma_{LOS}^2 > \\chi^2_{N-p-1}(1 - \\alpha)`, so that the false
 alarm probability of a LOS anchor is :math:`\\alpha` by construction (Gaussian LOS errors). The
 test runs per anchor, so it says which anchors are NLOS, not only that one exists.
+
 """
 
 from __future__ import annotations
@@ -40,12 +41,15 @@ class MseNlosTest:
         chapter's setting), 1 or 2 for a moving one.
     min_samples : int
         Below this many ranges the anchor is not tested (reported LOS).
+    clip : float
+        Residuals are clipped at this many ``los_std`` (0: the chapter's plain MSE).
     """
 
     los_std: float = 0.03
     false_alarm: float = 0.01
     order: int = 2
     min_samples: int = 8
+    clip: float = 3.0
 
     def statistic(self, t: FloatArray, ranges: FloatArray) -> tuple[float, int]:
         """``(N MSE / sigma_LOS^2, degrees of freedom)`` of one anchor's window.
@@ -69,8 +73,10 @@ class MseNlosTest:
         scale = max(float(np.ptp(tc)), 1e-9)
         basis = np.vander(tc / scale, order + 1)
         coef, *_ = np.linalg.lstsq(basis, r, rcond=None)
-        res = r - basis @ coef
-        return float(np.sum(res**2) / self.los_std**2), dof
+        res = (r - basis @ coef) / self.los_std
+        if self.clip > 0:
+            res = np.clip(res, -self.clip, self.clip)
+        return float(np.sum(res**2)), dof
 
     def is_nlos(self, t: FloatArray, ranges: FloatArray) -> bool:
         """Eq. (6) decision for one anchor's window of ranges."""

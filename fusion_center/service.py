@@ -19,7 +19,9 @@ from typing import Any
 import zenoh
 
 from fusion_center.core import FusionCore, FusionCoreConfig
+from fusion_center.localization.mobile import LocalizerConfig, PoseResult
 from fusion_center.offline import make_tracker
+from fusion_center.pose_core import PoseCore, poses_message
 from fusion_center.tracking.base import TrackerOutput
 from protocol import (
     Detections,
@@ -51,6 +53,7 @@ class FusionConfig:
     frame_period : TDMA frame period, s (50 impulse responses per second per transmitter).
     flush_after : a frame is processed at the latest this long (s) after its last detection.
     core : frame assembly parameters.
+    localization : localization of mobile nodes from their ranging rounds (``poses``).
     """
 
     net: str = "demo"
@@ -59,6 +62,7 @@ class FusionConfig:
     frame_period: float = 0.02
     flush_after: float = 0.05
     core: FusionCoreConfig = dataclasses.field(default_factory=FusionCoreConfig)
+    localization: LocalizerConfig = dataclasses.field(default_factory=LocalizerConfig)
 
 
 @dataclasses.dataclass(slots=True)
@@ -85,6 +89,8 @@ class FusionService:
     ) -> None:
         self.session, self.config, self.clock = session, config, clock
         self.core = FusionCore(make_tracker(config.method), config.core)
+        self.pose_core = PoseCore(config.localization)
+        self.latest_poses: dict[str, PoseResult] = {}
         self.epoch = clock() if epoch is None else epoch
         self._inbox: FifoChannel[tuple[str, str, bytes]] = FifoChannel(8192)
         self._stop = threading.Event()
@@ -96,7 +102,7 @@ class FusionService:
         self.decode_errors = 0
         self._schedule: TdmaSchedule | None = None
         self._schedule_bytes = b""
-        self._seq = {"tracks": 0, "schedule": 0}
+        self._seq = {"tracks": 0, "schedule": 0, "poses": 0}
         self._want_info: set[str] = set()
         self._asked: dict[str, float] = {}
         #: Recent local position estimates ``(t, positions (k, 2), cov (k, 2, 2))`` for viewers
@@ -116,7 +122,10 @@ class FusionService:
         self._pub_schedule = s.declare_publisher(
             keys.schedule_key(net), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        self._decl += [self._pub_tracks, self._pub_schedule]
+        self._pub_poses = s.declare_publisher(
+            keys.fusion_key(net, "poses"), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        self._decl += [self._pub_tracks, self._pub_schedule, self._pub_poses]
         for leaf in ("det", "info", "status"):
             self._decl.append(
                 s.declare_subscriber(
@@ -195,9 +204,12 @@ class FusionService:
                 h.detections += 1
                 h.last_det_t = msg.t
                 h.latency_ms = (self.clock() - msg.t) * 1e3
-            if msg.positions is not None and msg.positions.shape[0]:
-                self.recent_estimates.append((msg.t, msg.positions, msg.cov))
-            self._publish(self.core.add_detections(msg))
+            if msg.links is not None:
+                self._publish_pose(self.pose_core.add_ranging(msg))
+            else:
+                if msg.positions is not None and msg.positions.shape[0]:
+                    self.recent_estimates.append((msg.t, msg.positions, msg.cov))
+                self._publish(self.core.add_detections(msg))
         elif leaf == "info" and isinstance(msg, NodeInfo):
             self._add_node(msg)
         elif leaf == "status" and isinstance(msg, Status):
@@ -251,6 +263,7 @@ class FusionService:
     def _add_node(self, info: NodeInfo) -> None:
         known = self.core.nodes.get(info.src)
         self.core.add_node(info)
+        self.pose_core.add_node(info)
         if known is None or known.antennas != info.antennas:
             self._reschedule()
 
@@ -305,6 +318,17 @@ class FusionService:
             self._pub_tracks.put(msg.to_wire())
             with self._lock:
                 self.latest = out
+
+    def _publish_pose(self, result: tuple[str, PoseResult] | None) -> None:
+        """Publish the latest pose of every mobile node after one of them was updated."""
+        if result is None:
+            return
+        node, res = result
+        with self._lock:
+            self.latest_poses[node] = res
+            latest = dict(self.latest_poses)
+        msg = poses_message(latest, src=self.config.service_id, seq=self._next("poses"), t=res.t)
+        self._pub_poses.put(msg.to_wire())
 
     def _next(self, stream: str) -> int:
         seq = self._seq[stream]

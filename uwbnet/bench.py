@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from uwbnet.bench_localization import bench_localization
+
 
 def _machine() -> dict[str, Any]:
     return {"cores": os.cpu_count()}
@@ -205,6 +207,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
+    "localization": bench_localization,
     "sim": bench_sim,
     "web": bench_web,
 }

@@ -145,6 +145,23 @@ def cmd_ranging(args: argparse.Namespace) -> int:
     return _run_offline(args, "ranging", range_recording, method=args.method)
 
 
+def cmd_localize(args: argparse.Namespace) -> int:
+    from uwbnet.localization_cmd import localization_table, localize, table_lines
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    if args.table:
+        for line in table_lines(localization_table(src)):
+            print(line)
+        return 0
+    if not args.out:
+        raise CliError("give --out POSES.jsonl (or --table)")
+    out = _out_path(args.out)
+    print(json.dumps(localize(src, out, method=args.method, mitigate=not args.no_mitigation)))
+    return 0
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from fusion_center.offline import evaluate_files
 
@@ -414,6 +431,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.set_defaults(func=cmd_ranging)
 
+    lo = sub.add_parser("localize", help="localize mobile nodes over a recording (RTToA ranges)")
+    lo.add_argument("recording", help="MCAP recording with ranging detections")
+    lo.add_argument("--out", help="poses JSONL to write")
+    lo.add_argument("--method", choices=["lls", "taylor", "aml"], default="taylor")
+    lo.add_argument("--no-mitigation", action="store_true", help="use every anchor as LOS")
+    lo.add_argument("--table", action="store_true", help="every estimator, with/without mitigation")
+    lo.set_defaults(func=cmd_localize)
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
     e.add_argument("--tracks", required=True, help="tracks JSONL from 'uwbnet track'")
@@ -476,7 +500,9 @@ def build_parser() -> argparse.ArgumentParser:
         sp.set_defaults(func=cmd_plot)
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim", "web"))
+    b.add_argument(
+        "name", choices=("channel", "dsp", "fusion", "fuzz", "localization", "sim", "web")
+    )
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
@@ -510,6 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that are the user's input, reported as one line."""
     from fusion_center.offline import TrackingError
+    from fusion_center.offline_localization import LocalizationError
     from node_agent.drivers.base import DriverError
     from node_agent.offline import RangingError
     from protocol import ProtocolError
@@ -524,6 +551,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ProtocolError,
         ScenarioError,
         TrackingError,
+        LocalizationError,
         RangingError,
         DriverError,
         OSError,

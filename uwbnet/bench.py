@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from uwbnet.bench_imaging import bench_imaging
+
 
 def _machine() -> dict[str, Any]:
     return {"cores": os.cpu_count()}
@@ -198,6 +200,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
+    "imaging": bench_imaging,
     "sim": bench_sim,
 }
 

@@ -254,6 +254,26 @@ def cmd_image(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_stationary(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from fusion_center.imaging.stationary import detection_table
+
+    rows = detection_table(args.sinr, pf=args.pf, trials=args.trials, seed=args.seed)
+    table = [dataclasses.asdict(r) for r in rows]
+    if not args.json:
+        print(
+            f"{'SINR dB':>8}{'out dB':>8}{'Pd theory':>10}{'Pd sim':>8}{'Pf sim':>8}{'Pd emp':>8}"
+        )
+        for r in rows:
+            print(
+                f"{r.sinr_db:>8.1f}{r.output_sinr_db:>8.2f}{r.pd_theory:>10.4f}"
+                f"{r.pd_simulated:>8.4f}{r.pf_simulated:>8.4f}{r.pd_empirical_threshold:>8.4f}"
+            )
+    print(json.dumps({"pf": args.pf, "trials": args.trials, "seed": args.seed, "rows": table}))
+    return 0
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from fusion_center.offline import evaluate_files
 
@@ -532,6 +552,22 @@ def build_parser() -> argparse.ArgumentParser:
     im.add_argument("--db-range", type=_positive, default=30.0, help="PNG colour range, dB")
     im.set_defaults(func=cmd_image)
 
+    st = sub.add_parser(
+        "stationary", help="Pd vs SINR of stationary-target detection along a track (8.2)"
+    )
+    st.add_argument(
+        "--sinr",
+        type=float,
+        nargs="+",
+        default=[-15.0, -12.0, -9.0, -6.0, -3.0, 0.0],
+        help="SINR of one impulse response, dB",
+    )
+    st.add_argument("--pf", type=float, default=1e-3, help="false-alarm probability (1e-3)")
+    st.add_argument("--trials", type=int, default=20000, choices=range(100, 10**6), metavar="N")
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--json", action="store_true", help="print only the JSON line")
+    st.set_defaults(func=cmd_stationary)
+
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
     e.add_argument("--tracks", required=True, help="tracks JSONL from 'uwbnet track'")
@@ -572,7 +608,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.set_defaults(func=cmd_recover)
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim"))
+    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "imaging", "sim"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)

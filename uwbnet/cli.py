@@ -85,6 +85,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             net=args.net,
             method=args.method,
             record=record,
+            image_rate=args.image_rate,
         ),
         console,
     )
@@ -477,6 +478,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("gmphd", "image"),
         default="gmphd",
         help="fusion method: labelled GM-PHD (9.2) or fused image (9.1)",
+    )
+    d.add_argument(
+        "--image-rate",
+        type=float,
+        default=0.0,
+        help="live Kirchhoff images per second on fusion/image (0: off)",
     )
     d.set_defaults(func=cmd_demo)
 

@@ -174,6 +174,8 @@ class FusionFile(_Model):
     tracks_jsonl: str | None = Field(
         default=None, description="also write every fusion update to this JSONL file"
     )
+    image_rate: float = Field(default=0.0, ge=0.0, description="live images per second, 0: off")
+    image_method: Literal["kirchhoff", "xcorr"] = "kirchhoff"
     zenoh: ZenohModel = Field(default_factory=lambda: ZenohModel(mode="router"))
 
 

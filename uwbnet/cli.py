@@ -207,6 +207,7 @@ def cmd_image(args: argparse.Namespace) -> int:
         margin=args.margin,
         z=args.z,
         envelope=not args.raw,
+        coherent=args.coherent,
         pattern=args.pattern,
         gate=args.gate,
         workers=args.workers,
@@ -248,7 +249,7 @@ def cmd_image(args: argparse.Namespace) -> int:
             f"{args.method}: {src.name}",
             db_range=args.db_range,
             outlines=outlines,
-            positions=np.unique(obs.rx[:, :2].round(3), axis=0),
+            positions=np.unique(obs.tx[:, :2].round(3), axis=0),
         )
         result["png"] = str(png)
     print(json.dumps(result))
@@ -552,6 +553,11 @@ def build_parser() -> argparse.ArgumentParser:
     im.add_argument("--margin", type=float, default=1.0, help="m around the antennas (1)")
     im.add_argument("--z", type=float, help="height of the image plane, m (mean antenna height)")
     im.add_argument("--raw", action="store_true", help="migrate raw samples, not envelopes")
+    im.add_argument(
+        "--coherent",
+        action="store_true",
+        help="kirchhoff: coherent sum of complex-baseband rows, envelope after summation",
+    )
     im.add_argument("--pattern", action="store_true", help="weight by the antenna patterns")
     im.add_argument("--gate", type=float, default=0.3, help="m of path after the direct coupling")
     im.add_argument("--workers", type=int, default=2, choices=range(1, 65), metavar="N")

@@ -36,6 +36,7 @@ class ImageOptions:
     margin: float = 1.0
     z: float | None = None
     envelope: bool = True
+    coherent: bool = False
     pattern: bool = False
     gate: float = 0.3
     workers: int = 2
@@ -104,8 +105,12 @@ def make_image(
         kw["map_fn"] = pool.map
         try:
             if opts.method == "kirchhoff":
-                return kirchhoff_image(obs, grid, **kw)
+                return kirchhoff_image(obs, grid, coherent=opts.coherent, **kw)
             if opts.method == "xcorr":
+                if opts.coherent:
+                    raise ImagingError(
+                        "--coherent applies to kirchhoff only (xcorr uses envelopes)"
+                    )
                 return cross_correlated_image(obs, grid, **kw)
         except ValueError as exc:
             raise ImagingError(str(exc)) from None

@@ -25,6 +25,7 @@ releases the GIL in the kernels) to spread pixel tiles over cores.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -163,7 +164,35 @@ def envelope_rows(h: npt.NDArray[Any], block: int = 1024) -> F32:
     return out
 
 
-def prepare_signals(obs: Observations, *, envelope: bool = True, gate: float = 0.3) -> Any:
+def analytic_baseband(h: npt.NDArray[Any], fs: float, t0: float) -> tuple[Any, float]:
+    """Complex baseband of real rows: analytic signal times ``exp(-j 2 pi fc t)``, with ``fc``
+    the centroid of the rows' mean power spectrum (Hz). Returns (rows, fc)."""
+    from scipy import fft
+
+    n = h.shape[-1]
+    f = fft.rfftfreq(n, 1 / fs)
+    psd = np.zeros(f.size)
+    for a in range(0, h.shape[0], 1024):
+        psd += np.sum(np.abs(fft.rfft(h[a : a + 1024].astype(np.float32), axis=-1)) ** 2, axis=0)
+    fc = float(np.sum(f * psd) / max(np.sum(psd), 1e-300))
+    t = t0 + np.arange(n) / fs
+    rot = np.exp(-2j * np.pi * fc * t).astype(np.complex64)
+    gain = np.zeros(n, np.float32)
+    gain[0] = 1.0
+    gain[1 : (n + 1) // 2] = 2.0
+    if n % 2 == 0:
+        gain[n // 2] = 1.0
+    out = np.empty(h.shape, np.complex64)
+    for a in range(0, h.shape[0], 1024):
+        spec = fft.fft(h[a : a + 1024].astype(np.float32), axis=-1)
+        spec *= gain
+        out[a : a + 1024] = fft.ifft(spec, axis=-1, overwrite_x=True) * rot
+    return out, fc
+
+
+def prepare_signals(
+    obs: Observations, *, envelope: bool = True, gate: float = 0.3, coherent: bool = False
+) -> Any:
     """The signals that are migrated, (M, n): float32, or complex64 for complex baseband.
 
     Parameters
@@ -173,12 +202,18 @@ def prepare_signals(obs: Observations, *, envelope: bool = True, gate: float = 0
         robust to pose errors and to pixels larger than a quarter wavelength. ``False``: the
         raw samples (eq. (17) as printed; complex rows are then remodulated per pixel, see
         :func:`kirchhoff_image`).
+    coherent : bool
+        Complex baseband rows (real rows: :func:`analytic_baseband`), remodulated per pixel
+        and summed coherently; the image is the magnitude of the sum (the envelope is taken
+        after summation, so pixels need not resolve the carrier). Overrides ``envelope``.
     gate : float
         Samples whose path is shorter than the direct Tx-Rx distance plus ``gate`` metres are
         zeroed: the direct coupling is not an echo of the scene. Negative: no gate.
     """
     h = obs.h
-    if envelope:
+    if coherent and not np.iscomplexobj(h):
+        sig, _ = analytic_baseband(h, obs.fs, obs.t0)
+    elif envelope and not coherent:
         sig = envelope_rows(h)
     else:
         sig = h.astype(np.complex64 if np.iscomplexobj(h) else np.float32, copy=True)
@@ -438,6 +473,7 @@ def kirchhoff_image(
     envelope: bool = True,
     gate: float = 0.3,
     pattern: bool = False,
+    coherent: bool = False,
     chunk: int = 16,
     tile: int = 16384,
     map_fn: Map | None = None,
@@ -449,7 +485,7 @@ def kirchhoff_image(
     ----------
     obs : Observations
         Any mix of static and moving transmitters and receivers (positions per row).
-    envelope, gate
+    envelope, gate, coherent
         Signal pre-processing (:func:`prepare_signals`).
     pattern : bool
         Weight each sample by the ``cos^q`` amplitude patterns of its Tx and Rx antennas
@@ -469,7 +505,10 @@ def kirchhoff_image(
     """
     if pattern and (obs.tx_yaw is None or obs.rx_yaw is None):
         raise ValueError("antenna-pattern weighting needs antenna boresights")
-    sig = prepare_signals(obs, envelope=envelope, gate=gate)
+    sig = prepare_signals(obs, envelope=envelope, gate=gate, coherent=coherent)
+    if coherent and not np.iscomplexobj(obs.h):
+        _, fc = analytic_baseband(obs.h[: min(len(obs), 256)], obs.fs, obs.t0)
+        obs = dataclasses.replace(obs, fc=fc)
     obs2, sig = _merge_same_geometry(obs, sig)
     plan = _plan(grid, tile)
     chunks = list(_chunks(obs2, sig, plan, chunk, pattern))

@@ -88,11 +88,16 @@ def detection_probability(sinr: npt.ArrayLike, pf: float) -> F64:
     return ndtr(np.sqrt(np.asarray(sinr, float)) - ndtri(1.0 - pf))
 
 
-def system_pulse(fs: float, f0: float = 6.0e9, bandwidth: float = 4.0e9, half: int = 8) -> F64:
-    """A Gaussian-modulated cosine at ``f0`` (-6 dB ``bandwidth``), ``2 half + 1`` samples."""
-    t = np.arange(-half, half + 1) / fs
+def gaussian_pulse(t: npt.ArrayLike, f0: float = 6.0e9, bandwidth: float = 4.0e9) -> F64:
+    """A Gaussian-modulated cosine at ``f0`` (about ``bandwidth`` wide), unit peak, at ``t`` s."""
+    t = np.asarray(t, float)
     sigma = 2.355 / (np.pi * bandwidth)
     return np.exp(-0.5 * (t / sigma) ** 2) * np.cos(2 * np.pi * f0 * t)
+
+
+def system_pulse(fs: float, f0: float = 6.0e9, bandwidth: float = 4.0e9, half: int = 8) -> F64:
+    """:func:`gaussian_pulse` sampled at ``fs``, ``2 half + 1`` samples centred on its peak."""
+    return gaussian_pulse(np.arange(-half, half + 1) / fs, f0, bandwidth)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -130,11 +135,9 @@ def _window_samples(
     k0 = np.floor(tau * geo.fs).astype(np.intp) - 2 * half  # first sample kept
     w = 4 * half + 2
     t = (k0[:, None] + np.arange(w)) / geo.fs  # (K, W) sample times
-    sigma_pulse = 2.355 / (np.pi * 4.0e9)
 
     def echo(d: F64) -> F64:  # pulse at delays d (..., K, 1) sampled at t
-        u = t - d
-        return np.exp(-0.5 * (u / sigma_pulse) ** 2) * np.cos(2 * np.pi * 6.0e9 * u)
+        return gaussian_pulse(t - d)
 
     x0, x1, y0, y1 = geo.room
     cp = np.stack(

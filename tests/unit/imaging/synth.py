@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from fusion_center.imaging import Observations
+from fusion_center.imaging.stationary import gaussian_pulse
 from protocol.units import C
 
 FS = 20e9
@@ -14,8 +15,7 @@ F0, BW = 6.0e9, 4.0e9
 
 def pulse(t: np.ndarray) -> np.ndarray:
     """A Gaussian-modulated cosine (F0, about BW wide), unit peak."""
-    sigma = 1.0 / (np.pi * BW / 2.355)
-    return np.exp(-0.5 * (t / sigma) ** 2) * np.cos(2 * np.pi * F0 * t)
+    return gaussian_pulse(t, F0, BW)
 
 
 def responses(

@@ -9,6 +9,7 @@ from fusion_center.imaging.stationary import (
     bistatic_delays,
     detection_probability,
     detection_table,
+    gaussian_pulse,
     matched_filter,
     np_threshold,
     system_pulse,
@@ -24,9 +25,7 @@ def test_time_shift_aligns_echoes_at_subsample_delays() -> None:
     n = 400
     delays = np.array([5.3e-9, 6.1e-9, 7.77e-9])
     t = np.arange(n) / FS
-    sigma = 2.355 / (np.pi * 4e9)
-    u = t[None, :] - delays[:, None]
-    h = np.exp(-0.5 * (u / sigma) ** 2) * np.cos(2 * np.pi * 6e9 * u)
+    h = gaussian_pulse(t[None, :] - delays[:, None])
     y = time_shift_accumulate(h, delays, FS, 0.0, half)
     assert y.shape == (pulse.size,)
     # Aligned; linear interpolation of a 6 GHz carrier at 20 GHz loses some peak amplitude.

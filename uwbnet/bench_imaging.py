@@ -59,7 +59,10 @@ def bench_imaging(seed: int = 0) -> dict[str, Any]:
 
     obs = _room_pillar_observations(seed)
     grid = Grid.covering(-0.25, 9.25, -0.25, 8.25, 400, 400, 1.0)
-    # Single-thread rate on a slice of rows.
+    # Single-thread rates on slices of rows, after a warm-up call (imports, FFT plans).
+    small = Grid.covering(0.0, 1.0, 0.0, 1.0, 8, 8, 1.0)
+    kirchhoff_image(obs.take(np.arange(4)), small)
+    straightforward_kirchhoff(obs.take(np.arange(4)), small)
     part = obs.take(np.arange(0, len(obs), 37))
     c0 = time.process_time()
     kirchhoff_image(part, grid)

@@ -125,6 +125,8 @@ def _sim_robot(args: argparse.Namespace, scenario: Any, out: Path) -> int:
 
     if args.stops is not None and args.stops < 1:
         raise CliError(f"--stops must be at least 1, got {args.stops}")
+    if args.duration is not None:
+        raise CliError("--duration does not apply to a [robot] scenario (use --stops)")
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("channel (robot stops)", total=None)
 

@@ -156,4 +156,6 @@ def test_sim_rejects_a_bad_stop_count(small_toml: Path, tmp_path: Path) -> None:
     out = tmp_path / "x.mcap"
     proc = uwbnet("sim", str(small_toml), "--out", str(out), "--stops", "0")
     assert_one_line_error(proc, "--stops")
+    proc = uwbnet("sim", str(small_toml), "--out", str(out), "--duration", "3")
+    assert_one_line_error(proc, "--duration does not apply")
     assert not out.exists()

@@ -466,6 +466,18 @@ def _merge_same_geometry(obs: Observations, sig: npt.NDArray[Any]) -> tuple[Obse
     return obs.take(first), summed
 
 
+def _by_transmitter(tx: npt.NDArray[np.float64]) -> npt.NDArray[np.intp] | None:
+    """Row order grouping equal transmitters (a chunk with one transmitter computes its
+    distances once), or None if already grouped."""
+    key = np.round(tx * 1e6).astype(np.int64)
+    if len(key) < 2 or not np.any(np.any(key[1:] != key[:-1], axis=1)):
+        return None
+    order = np.lexsort(key.T[::-1])
+    changes = np.count_nonzero(np.any(key[1:] != key[:-1], axis=1))
+    sorted_changes = np.count_nonzero(np.any(np.diff(key[order], axis=0) != 0, axis=1))
+    return order if sorted_changes < changes else None
+
+
 def kirchhoff_image(
     obs: Observations,
     grid: Grid,
@@ -510,6 +522,9 @@ def kirchhoff_image(
         _, fc = analytic_baseband(obs.h[: min(len(obs), 256)], obs.fs, obs.t0)
         obs = dataclasses.replace(obs, fc=fc)
     obs2, sig = _merge_same_geometry(obs, sig)
+    order = _by_transmitter(obs2.tx)
+    if order is not None:
+        obs2, sig = obs2.take(order), sig[order]
     plan = _plan(grid, tile)
     chunks = list(_chunks(obs2, sig, plan, chunk, pattern))
     extra = (obs.t0 * obs.fs, obs.fs / C)
@@ -614,6 +629,9 @@ def cross_correlated_image(
         idx = idx[~mutual | (idx < ref[idx])]
     if idx.size == 0:
         raise ValueError("no observation has a reference receiver (one receiver per emission)")
+    order = _by_transmitter(obs.tx[idx])
+    if order is not None:
+        idx = idx[order]
     sig = prepare_signals(obs, envelope=envelope, gate=gate)
     taps = max(1, round((duration if duration is not None else 1e-10) * obs.fs))
     plan = _plan(grid, tile)

@@ -19,12 +19,14 @@ from typing import Any
 import zenoh
 
 from fusion_center.core import FusionCore, FusionCoreConfig
+from fusion_center.image_runtime import ImagingRuntime, LiveImagingConfig
 from fusion_center.localization.mobile import LocalizerConfig, PoseResult
 from fusion_center.offline import make_tracker
 from fusion_center.pose_core import PoseCore, poses_message
 from fusion_center.tracking.base import TrackerOutput
 from protocol import (
     Detections,
+    Ir,
     NodeInfo,
     ProtocolError,
     Slot,
@@ -36,7 +38,7 @@ from protocol import (
     keys,
 )
 from protocol.errors import KeyExprError
-from protocol.transport import FifoChannel, stop_worker
+from protocol.transport import FifoChannel, RingChannel, stop_worker
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +56,8 @@ class FusionConfig:
     flush_after : a frame is processed at the latest this long (s) after its last detection.
     core : frame assembly parameters.
     localization : localization of mobile nodes from their ranging rounds (``poses``).
+    imaging : live imaging of the nodes' ``ir`` (off unless ``imaging.rate > 0``), in its own
+        thread, published on ``fusion/image``.
     """
 
     net: str = "demo"
@@ -63,6 +67,7 @@ class FusionConfig:
     flush_after: float = 0.05
     core: FusionCoreConfig = dataclasses.field(default_factory=FusionCoreConfig)
     localization: LocalizerConfig = dataclasses.field(default_factory=LocalizerConfig)
+    imaging: LiveImagingConfig = dataclasses.field(default_factory=LiveImagingConfig)
 
 
 @dataclasses.dataclass(slots=True)
@@ -108,6 +113,11 @@ class FusionService:
         #: Recent local position estimates ``(t, positions (k, 2), cov (k, 2, 2))`` for viewers
         #: (the web view's moving-target image); bounded, the oldest fall off unread.
         self.recent_estimates: deque[tuple[float, Any, Any]] = deque(maxlen=4096)
+        #: Live imaging (None when off): its runtime, ``ir`` ring and thread.
+        self.imaging: ImagingRuntime | None = None
+        self._ir_inbox: RingChannel[bytes] = RingChannel(1024)
+        self._img_thread: threading.Thread | None = None
+        self._img_lock = threading.Lock()
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -143,6 +153,8 @@ class FusionService:
         self._decl.append(s.declare_queryable(keys.schedule_key(net), self._on_schedule_query))
         self._decl.append(s.liveliness().declare_token(keys.alive_key(net, self.config.service_id)))
         self._publish_schedule()
+        if self.config.imaging.rate > 0:
+            self._start_imaging()
         self._thread = threading.Thread(target=self._run, name="fusion", daemon=True)
         self._thread.start()
         log.info(
@@ -153,8 +165,50 @@ class FusionService:
         )
 
     def stop(self) -> None:
+        if self._img_thread is not None:
+            self._stop.set()
+            self._img_thread.join(timeout=10.0)
+            self._img_thread = None
         stop_worker(self._stop, self._thread, self._decl)
         self._thread = None
+
+    # -- live imaging ----------------------------------------------------------------------
+
+    def _start_imaging(self) -> None:
+        net, s = self.config.net, self.session
+        self.imaging = ImagingRuntime(self.config.imaging, self.config.service_id)
+        self._pub_image = s.declare_publisher(keys.fusion_key(net, "image"))
+        self._decl.append(self._pub_image)
+        put = self._ir_inbox.put
+        self._decl.append(
+            s.declare_subscriber(keys.all_nodes_key(net, "ir"), lambda smp: put(_bytes(smp)))
+        )
+        self._img_thread = threading.Thread(target=self._run_imaging, name="imaging", daemon=True)
+        self._img_thread.start()
+
+    def _run_imaging(self) -> None:
+        """Decode ``ir`` as it arrives, migrate and publish at ``imaging.rate``."""
+        assert self.imaging is not None
+        period = 1.0 / self.config.imaging.rate
+        next_t = time.monotonic() + period
+        while not self._stop.is_set():
+            payload = self._ir_inbox.get(timeout=max(0.0, min(period, next_t - time.monotonic())))
+            if payload is not None:
+                try:
+                    msg = decode(payload)
+                    if not isinstance(msg, Ir):
+                        raise ProtocolError(f"kind {msg.KIND!r} on an ir key")
+                    with self._img_lock:
+                        self.imaging.add_ir(msg)
+                except ProtocolError as exc:
+                    self.decode_errors += 1
+                    log.warning("rejected ir: %s", exc)
+            if time.monotonic() >= next_t:
+                next_t = time.monotonic() + period
+                with self._img_lock:
+                    image = self.imaging.step(self.clock())
+                if image is not None:
+                    self._pub_image.put(image.to_wire())
 
     def _on_schedule_query(self, query: zenoh.Query) -> None:
         if self._schedule_bytes:
@@ -264,6 +318,9 @@ class FusionService:
         known = self.core.nodes.get(info.src)
         self.core.add_node(info)
         self.pose_core.add_node(info)
+        if self.imaging is not None:
+            with self._img_lock:
+                self.imaging.add_info(info)
         if known is None or known.antennas != info.antennas:
             self._reschedule()
 

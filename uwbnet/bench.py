@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from uwbnet.bench_imaging import bench_imaging
 from uwbnet.bench_localization import bench_localization
 
 
@@ -208,6 +209,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
     "localization": bench_localization,
+    "imaging": bench_imaging,
     "sim": bench_sim,
     "web": bench_web,
 }

@@ -85,6 +85,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             record=record,
             web=args.web,
             web_host=args.web_host,
+            image_rate=args.image_rate,
         ),
         console,
     )
@@ -99,6 +100,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     scenario = _load_scenario(args.scenario)
     out = _out_path(args.out)
+    if not scenario.nodes and scenario.robot is not None:
+        return _sim_robot(args, scenario, out)
     duration = args.duration if args.duration is not None else float(scenario.duration)
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("simulating", total=duration)
@@ -111,6 +114,37 @@ def cmd_sim(args: argparse.Namespace) -> int:
             progress=lambda dt: progress.advance(task, dt),
         )
     print(json.dumps({"out": str(out), "messages": n, "duration_s": duration, "seed": args.seed}))
+    return 0
+
+
+def _sim_robot(args: argparse.Namespace, scenario: Any, out: Path) -> int:
+    """``uwbnet sim`` of a ``[robot]`` scenario: every stop and heading (sim_nodes.robot_record)."""
+    from rich.progress import Progress
+
+    from uwbnet.robot_sim_cmd import simulate_robot
+
+    if args.stops is not None and args.stops < 1:
+        raise CliError(f"--stops must be at least 1, got {args.stops}")
+    if args.duration is not None:
+        raise CliError("--duration does not apply to a [robot] scenario (use --stops)")
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("channel (robot stops)", total=None)
+
+        def report(stage: str, done: int, total: int) -> None:
+            progress.update(task, description=stage, completed=done, total=total)
+
+        result = simulate_robot(
+            args.scenario,
+            scenario,
+            out,
+            seed=args.seed,
+            workers=args.workers,
+            stops=args.stops,
+            snr_db=args.snr,
+            net=args.net,
+            progress=report,
+        )
+    print(json.dumps(result))
     return 0
 
 
@@ -159,6 +193,105 @@ def cmd_localize(args: argparse.Namespace) -> int:
         raise CliError("give --out POSES.jsonl (or --table)")
     out = _out_path(args.out)
     print(json.dumps(localize(src, out, method=args.method, mitigate=not args.no_mitigation)))
+    return 0
+
+
+def cmd_image(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+    from rich.progress import Progress
+
+    from uwbnet.image_cmd import (
+        ImageOptions,
+        default_grid,
+        make_image,
+        read_observations,
+        scenario_figures,
+        write_npz,
+        write_png,
+    )
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    out = _out_path(args.out)
+    png = _out_path(args.png) if args.png else None
+    scenario = _load_scenario(args.scenario) if args.scenario else None
+    opts = ImageOptions(
+        method=args.method,
+        nx=args.nx,
+        ny=args.ny,
+        bounds=tuple(args.bounds) if args.bounds else None,
+        margin=args.margin,
+        z=args.z,
+        envelope=not args.raw,
+        coherent=args.coherent,
+        pattern=args.pattern,
+        gate=args.gate,
+        workers=args.workers,
+    )
+    t0 = time.perf_counter()
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("reading", total=src.stat().st_size)
+        obs, rejected = read_observations(src, lambda n: progress.advance(task, n))
+        grid = default_grid(obs, opts)
+        progress.update(
+            task, description=f"imaging ({args.method})", completed=0, total=grid.nx * grid.ny
+        )
+        t1 = time.perf_counter()
+        img = make_image(obs, grid, opts, lambda n: progress.advance(task, n))
+    t2 = time.perf_counter()
+    write_npz(out, img, grid, args.method)
+    result: dict[str, Any] = {
+        "out": str(out),
+        "method": args.method,
+        "observations": len(obs),
+        "rejected": rejected,
+        "nx": grid.nx,
+        "ny": grid.ny,
+        "read_s": round(t1 - t0, 2),
+        "image_s": round(t2 - t1, 2),
+    }
+    if scenario is not None:
+        result.update(scenario_figures(img, grid, scenario))
+    if png is not None:
+        outlines = []
+        if scenario is not None:
+            outlines = [o.footprint for o in scenario.objects]
+            outlines += [scenario.room.outline] if scenario.room is not None else []
+            outlines += [[w.start, w.end] for w in scenario.walls]
+        write_png(
+            png,
+            img,
+            grid,
+            f"{args.method}: {src.name}",
+            db_range=args.db_range,
+            outlines=outlines,
+            positions=np.unique(obs.tx[:, :2].round(3), axis=0),
+        )
+        result["png"] = str(png)
+    print(json.dumps(result))
+    return 0
+
+
+def cmd_stationary(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from fusion_center.imaging.stationary import detection_table
+
+    rows = detection_table(args.sinr, pf=args.pf, trials=args.trials, seed=args.seed)
+    table = [dataclasses.asdict(r) for r in rows]
+    if not args.json:
+        print(
+            f"{'SINR dB':>8}{'out dB':>8}{'Pd theory':>10}{'Pd sim':>8}{'Pf sim':>8}{'Pd emp':>8}"
+        )
+        for r in rows:
+            print(
+                f"{r.sinr_db:>8.1f}{r.output_sinr_db:>8.2f}{r.pd_theory:>10.4f}"
+                f"{r.pd_simulated:>8.4f}{r.pf_simulated:>8.4f}{r.pd_empirical_threshold:>8.4f}"
+            )
+    print(json.dumps({"pf": args.pf, "trials": args.trials, "seed": args.seed, "rows": table}))
     return 0
 
 
@@ -376,6 +509,11 @@ def cmd_channel_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The benchmarks of ``uwbnet bench`` (the keys of ``uwbnet.bench.BENCHES``, which a test
+#: checks): listed here so that parsing the command line imports no benchmark module.
+BENCH_NAMES = ("channel", "dsp", "fusion", "fuzz", "imaging", "localization", "sim", "web")
+
+
 # --- parser ----------------------------------------------------------------------------------
 
 
@@ -398,6 +536,12 @@ def build_parser() -> argparse.ArgumentParser:
         default="gmphd",
         help="fusion method: labelled GM-PHD (9.2) or fused image (9.1)",
     )
+    d.add_argument(
+        "--image-rate",
+        type=float,
+        default=0.0,
+        help="live Kirchhoff images per second on fusion/image (0: off)",
+    )
     d.set_defaults(func=cmd_demo)
 
     s = sub.add_parser("sim", help="simulate a scenario into an MCAP recording")
@@ -406,6 +550,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=_positive, help="seconds (default: the scenario's)")
     s.add_argument("--seed", type=int, default=1, help="simulation seed")
     s.add_argument("--net", default="demo", help="network name in the topics")
+    s.add_argument("--stops", type=int, help="[robot] scenarios: only the first N stops")
+    s.add_argument(
+        "--snr", type=float, default=30.0, help="[robot] scenarios: in-band SNR, dB (30)"
+    )
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        choices=range(1, 65),
+        metavar="N",
+        help="[robot] scenarios: processes computing the channel (2)",
+    )
     s.set_defaults(func=cmd_sim)
 
     t = sub.add_parser("track", help="node DSP and fusion over a recording, offline")
@@ -438,6 +594,56 @@ def build_parser() -> argparse.ArgumentParser:
     lo.add_argument("--no-mitigation", action="store_true", help="use every anchor as LOS")
     lo.add_argument("--table", action="store_true", help="every estimator, with/without mitigation")
     lo.set_defaults(func=cmd_localize)
+    im = sub.add_parser("image", help="multistatic image of a recording's impulse responses")
+    im.add_argument("recording", help="input MCAP recording (node_info, ir, optional poses)")
+    im.add_argument("--out", required=True, help="output .npz (img, x0, y0, dx, dy)")
+    im.add_argument(
+        "--method",
+        choices=("kirchhoff", "xcorr"),
+        default="kirchhoff",
+        help="Kirchhoff migration (eq. 17) or cross-correlated imaging (eq. 18)",
+    )
+    im.add_argument("--png", help="also save the image (dB re maximum) as PNG")
+    im.add_argument("--nx", type=int, default=400, choices=range(2, 4097), metavar="N")
+    im.add_argument("--ny", type=int, default=400, choices=range(2, 4097), metavar="N")
+    im.add_argument(
+        "--bounds",
+        type=float,
+        nargs=4,
+        metavar=("XMIN", "XMAX", "YMIN", "YMAX"),
+        help="image extent, m (default: the antennas' extent plus --margin)",
+    )
+    im.add_argument("--margin", type=float, default=1.0, help="m around the antennas (1)")
+    im.add_argument("--z", type=float, help="height of the image plane, m (mean antenna height)")
+    im.add_argument("--raw", action="store_true", help="migrate raw samples, not envelopes")
+    im.add_argument(
+        "--coherent",
+        action="store_true",
+        help="kirchhoff: coherent sum of complex-baseband rows, envelope after summation",
+    )
+    im.add_argument("--pattern", action="store_true", help="weight by the antenna patterns")
+    im.add_argument("--gate", type=float, default=0.3, help="m of path after the direct coupling")
+    im.add_argument("--workers", type=int, default=2, choices=range(1, 65), metavar="N")
+    im.add_argument("--scenario", help="scenario of the recording: print quality figures")
+    im.add_argument("--db-range", type=_positive, default=30.0, help="PNG colour range, dB")
+    im.set_defaults(func=cmd_image)
+
+    st = sub.add_parser(
+        "stationary", help="Pd vs SINR of stationary-target detection along a track (8.2)"
+    )
+    st.add_argument(
+        "--sinr",
+        type=float,
+        nargs="+",
+        default=[-15.0, -12.0, -9.0, -6.0, -3.0, 0.0],
+        help="SINR of one impulse response, dB",
+    )
+    st.add_argument("--pf", type=float, default=1e-3, help="false-alarm probability (1e-3)")
+    st.add_argument("--trials", type=int, default=20000, choices=range(100, 10**6), metavar="N")
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--json", action="store_true", help="print only the JSON line")
+    st.set_defaults(func=cmd_stationary)
+
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
     e.add_argument("--tracks", required=True, help="tracks JSONL from 'uwbnet track'")
@@ -500,9 +706,7 @@ def build_parser() -> argparse.ArgumentParser:
         sp.set_defaults(func=cmd_plot)
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument(
-        "name", choices=("channel", "dsp", "fusion", "fuzz", "localization", "sim", "web")
-    )
+    b.add_argument("name", choices=BENCH_NAMES)
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
@@ -535,6 +739,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that are the user's input, reported as one line."""
+    from fusion_center.image_input import ImagingError
     from fusion_center.offline import TrackingError
     from fusion_center.offline_localization import LocalizationError
     from node_agent.drivers.base import DriverError
@@ -552,6 +757,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ScenarioError,
         TrackingError,
         LocalizationError,
+        ImagingError,
         RangingError,
         DriverError,
         OSError,

@@ -186,6 +186,8 @@ class FusionFile(_Model):
         default=None, description="also write every fusion update to this JSONL file"
     )
     web: WebModel | None = Field(default=None, description="serve the live web view")
+    image_rate: float = Field(default=0.0, ge=0.0, description="live images per second, 0: off")
+    image_method: Literal["kirchhoff", "xcorr"] = "kirchhoff"
     zenoh: ZenohModel = Field(default_factory=lambda: ZenohModel(mode="router"))
 
 

@@ -23,6 +23,7 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
+from fusion_center.image_runtime import LiveImagingConfig
 from fusion_center.recorder import NetworkRecorder
 from fusion_center.service import FusionConfig, FusionService, NodeHealth
 from fusion_center.tracking.base import TrackerOutput
@@ -51,6 +52,8 @@ class DemoConfig:
     publish_ir: bool = True
     web: int | None = None
     web_host: str = "127.0.0.1"
+    #: Live images per second of the fusion center (0: off; fusion_center.image_runtime).
+    image_rate: float = 0.0
 
 
 @dataclasses.dataclass(slots=True)
@@ -188,7 +191,13 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
     with contextlib.ExitStack() as stack:
         fusion_session = stack.enter_context(zenoh.open(session_config(listen=[hub])))
         fusion = FusionService(
-            fusion_session, FusionConfig(net=config.net, method=config.method), epoch=start
+            fusion_session,
+            FusionConfig(
+                net=config.net,
+                method=config.method,
+                imaging=LiveImagingConfig(rate=config.image_rate),
+            ),
+            epoch=start,
         )
         fusion.start()
         stack.callback(fusion.stop)
@@ -288,10 +297,14 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             "acquired": sum(h.last_status.acquired for h in health.values() if h.last_status),
             "late_slots": sum(h.last_status.late_slots for h in health.values() if h.last_status),
             "final_tracks": len(out.tracks) if out else 0,
+            "latency_ms_max": round(max((h.latency_ms for h in health.values()), default=0), 1),
             **score.as_dict(),
         }
         if recorder is not None:
             summary["recorded_dropped"] = recorder.dropped
+        if fusion.imaging is not None:
+            c = fusion.imaging.counters
+            summary |= {"image_steps": c.steps, "image_rows": c.rows, "image_rejected": c.rejected}
     # The recording is complete only once the exit stack has closed it.
     if config.record:
         summary["recording"] = config.record

@@ -240,6 +240,8 @@ def _write_tracks(f: Any, inbox: FifoChannel[bytes]) -> None:
 
 def run_fusion(cfg: FusionFile, stop: threading.Event) -> int:
     """The fusion center (the network's router in ``router`` mode)."""
+    from fusion_center.image_runtime import LiveImagingConfig
+    from fusion_center.imaging.incremental import ImagingConfig
     from fusion_center.service import FusionConfig, FusionService
 
     log.info("fusion config: %s", cfg.model_dump_json())
@@ -257,6 +259,9 @@ def run_fusion(cfg: FusionFile, stop: threading.Event) -> int:
                 service_id=cfg.service_id,
                 method=cfg.method,
                 frame_period=cfg.frame_period,
+                imaging=LiveImagingConfig(
+                    rate=cfg.image_rate, imaging=ImagingConfig(method=cfg.image_method)
+                ),
             ),
         )
         if jsonl is not None:

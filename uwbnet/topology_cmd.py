@@ -274,7 +274,7 @@ def optimize_scenario(
     spacing: float = 1.0,
     add: bool = False,
     search_grid: int = 60,
-    search_references: tuple[int, int] = (4, 3),
+    search_references: tuple[int, int] = (5, 4),
     grid: int = 200,
     references: tuple[int, int] = (8, 6),
     png: Path | None = None,
@@ -285,7 +285,9 @@ def optimize_scenario(
     scenario's nodes). Robot scenarios: ``k`` stationary receivers that hear the robot's
     transmitter along its track (Fig. 17), in addition to the robot's own receivers.
     The naive placement spaces the ``k`` sites evenly around the perimeter. Both are
-    re-evaluated at the fine settings (``grid``, ``references``).
+    re-evaluated at the fine settings (``grid``, ``references``); the search evaluates
+    hundreds of networks, each at ``search_references`` points (at most ``references``) with
+    a ``search_grid`` ghost grid plus the fine window around each point.
     """
     band = scenario_band(scenario)
     area = scenario_area(scenario, grid, grid)
@@ -295,8 +297,13 @@ def optimize_scenario(
     if not 1 <= k <= len(cands):
         raise ValueError(f"--sensors must be 1..{len(cands)} (candidate sites), got {k}")
     fixed = scenario_geometry(scenario) if (robot or add) else None
+    search_grid = min(search_grid, grid)
     search_area = area.with_grid(search_grid, max(2, round(search_grid * _aspect(area))))
-    opt = GreedyPlacementOptimizer(band, search_area, search_references)
+    search_refs = (
+        min(search_references[0], references[0]),
+        min(search_references[1], references[1]),
+    )
+    opt = GreedyPlacementOptimizer(band, search_area, search_refs)
     t0 = time.perf_counter()
     result = opt.optimize(cands, k, fixed)
     search_s = time.perf_counter() - t0
@@ -305,7 +312,7 @@ def optimize_scenario(
         "optimized": (compose_network(cands, result.selection, fixed), result.selection),
     }
     if not robot and not add and k == len(scenario.nodes):
-        layouts["scenario"] = (scenario_geometry(scenario), None)
+        layouts["deployed"] = (scenario_geometry(scenario), None)
     if add or robot:
         layouts["before"] = (scenario_geometry(scenario), None)
     fine_area = area.with_grid(grid, max(2, round(grid * _aspect(area))))

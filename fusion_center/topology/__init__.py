@@ -5,7 +5,15 @@ Pure numpy: the AF of a UWB MIMO network and its signal x topology x motion fact
 over an area (:mod:`.evaluate`) and sensor-site selection (:mod:`.optimize`).
 """
 
-from .ambiguity import SPEED_OF_LIGHT, Band, FactorMaps, NetworkGeometry, ambiguity, factor_maps
+from .ambiguity import (
+    SPEED_OF_LIGHT,
+    Band,
+    FactorMaps,
+    NetworkGeometry,
+    ambiguity,
+    factor_maps,
+    grid_points,
+)
 from .evaluate import AreaEvaluation, evaluate_area, placement_cost, reference_grid
 from .optimize import (
     GreedyPlacementOptimizer,
@@ -41,6 +49,7 @@ __all__ = [
     "even_selection",
     "factor_maps",
     "ghost_level",
+    "grid_points",
     "mainlobe_widths",
     "placement_cost",
     "principal_axes",

@@ -132,14 +132,20 @@ def principal_axes(
         Quadratic-model full widths at ``|chi|^2 = 1/2`` (a starting scale; see
         :func:`mainlobe_widths` for the measured ones).
     """
+    vals, vecs = np.linalg.eigh(_wavevector_covariance(geometry, band, reference))
+    # eigh sorts ascending: the smaller eigenvalue is the wider lobe, listed first.
+    return vecs.T.copy(), 2.0 * np.sqrt(0.5 / np.maximum(vals, 1e-12))
+
+
+def _wavevector_covariance(
+    geometry: NetworkGeometry, band: Band, reference: npt.ArrayLike
+) -> FloatArray:
+    """Covariance of the links' wave vectors ``2 pi f / c * s_l`` over links and band, 1/m^2."""
     s = geometry.sum_direction(reference)
     scale = (2.0 * np.pi / SPEED_OF_LIGHT) ** 2
     second = scale * band.mean_square_frequency * (s.T @ s) / len(s)
     mean = (2.0 * np.pi * band.center / SPEED_OF_LIGHT) * s.mean(axis=0)
-    cov = second - np.outer(mean, mean)
-    vals, vecs = np.linalg.eigh(cov)  # ascending: the smaller eigenvalue is the wider lobe
-    vals = np.maximum(vals, 1e-12)
-    return vecs.T.copy(), 2.0 * np.sqrt(0.5 / vals)
+    return second - np.outer(mean, mean)
 
 
 def mainlobe_widths(
@@ -161,27 +167,48 @@ def mainlobe_widths(
     axes : ndarray, shape (2, 2)
     """
     p0 = np.asarray(reference, dtype=np.float64)
-    model_axes, model = principal_axes(geometry, band, p0)
-    axes = model_axes if axes is None else np.asarray(axes, dtype=np.float64)
-    # Search to 3x the quadratic model's half width, at least 20 samples across the lobe.
-    half = np.minimum(3.0 * model, 10.0)
+    if axes is None:
+        axes, _ = principal_axes(geometry, band, p0)
+    axes = np.asarray(axes, dtype=np.float64)
+    cov = _wavevector_covariance(geometry, band, p0)
+    curvature = np.maximum(np.einsum("ij,jk,ik->i", axes, cov, axes), 1e-12)
+    # Search to 3x the quadratic model's half width (at most 10 m), then once more to 1.5x
+    # the measured half width, so that ~100 samples fall across the lobe.
+    half = np.minimum(3.0 * np.sqrt(0.5 / curvature), 10.0)
     widths = np.empty(2)
     for i in range(2):
-        r = np.linspace(0.0, half[i], samples)[1:]
-        line = np.concatenate([p0 + r[:, None] * axes[i], p0 - r[:, None] * axes[i]])
-        mag = np.abs(ambiguity(geometry, band, p0, line)).reshape(2, -1)
-        side = np.empty(2)
-        for j in range(2):
-            below = np.nonzero(mag[j] < _HALF_POWER)[0]
-            if below.size == 0:
-                side[j] = half[i]  # no crossing within the search: report the search limit
-                continue
-            n = below[0]
-            m_prev, r_prev = (1.0, 0.0) if n == 0 else (mag[j, n - 1], r[n - 1])
-            frac = (m_prev - _HALF_POWER) / max(m_prev - mag[j, n], 1e-12)
-            side[j] = r_prev + frac * (r[n] - r_prev)
-        widths[i] = side.sum()
+        for _ in range(2):
+            side = _crossings(geometry, band, p0, axes[i], half[i], samples)
+            widths[i] = side.sum()
+            if side.max() >= half[i]:
+                break  # no crossing within the search: keep the search limit
+            half[i] = 1.5 * side.max()
     return widths, axes
+
+
+def _crossings(
+    geometry: NetworkGeometry,
+    band: Band,
+    p0: FloatArray,
+    axis: FloatArray,
+    half: float,
+    samples: int,
+) -> FloatArray:
+    """Distances from ``p0`` to the first -3 dB crossing in the ``+axis`` and ``-axis``
+    directions (linear interpolation; ``half`` where none is found), m."""
+    r = np.linspace(0.0, half, samples)[1:]
+    line = np.concatenate([p0 + r[:, None] * axis, p0 - r[:, None] * axis])
+    mag = np.abs(ambiguity(geometry, band, p0, line)).reshape(2, -1)
+    side = np.full(2, half)
+    for j in range(2):
+        below = np.nonzero(mag[j] < _HALF_POWER)[0]
+        if below.size == 0:
+            continue
+        n = below[0]
+        m_prev, r_prev = (1.0, 0.0) if n == 0 else (mag[j, n - 1], r[n - 1])
+        frac = (m_prev - _HALF_POWER) / max(m_prev - mag[j, n], 1e-12)
+        side[j] = r_prev + frac * (r[n] - r_prev)
+    return side
 
 
 def ghost_level(
@@ -199,8 +226,10 @@ def ghost_level(
 
     The main lobe is the ellipse with semi-axes ``mainlobe_factor * widths`` along ``axes``
     (a sinc lobe's first null is 1.13 3-dB widths from its peak). The AF is evaluated on the
-    area's grid; the ``refine`` highest local maxima outside the main lobe are then refined by
-    two finer local grid searches, because a grid coarser than the lobes under-reads peaks.
+    area's grid and on a fine window (quarter-width steps, 6 main-lobe radii) around the
+    reference, where the close-in sidelobes are; the ``refine`` highest local maxima of the
+    grid and the two highest of the window outside the main lobe are then refined by two
+    finer local grid searches, because a grid coarser than the lobes under-reads peaks.
 
     Returns
     -------
@@ -222,15 +251,27 @@ def ghost_level(
     mask = outside(pts).reshape(area.ny, area.nx)
     peaks = (image == maximum_filter(image, size=3, mode="nearest")) & mask
     flat = np.flatnonzero(peaks)
-    if flat.size == 0:
-        return -np.inf, p0.copy(), image
-    best = flat[np.argsort(image.ravel()[flat])[::-1][:refine]]
     dx, dy = area.step
+    top = flat[np.argsort(image.ravel()[flat])[::-1][:refine]]
+    seeds = [(pts[i], np.array([dx, dy])) for i in top]
+    # The close-in sidelobes next to the main lobe are narrower than a coarse area grid:
+    # search a fine window around the reference too (quarter-width steps).
+    fine = float(np.min(widths)) / 4.0
+    half = mainlobe_factor * float(np.max(widths)) * 3.0
+    if fine > 0 and half > 0:
+        n = min(int(2 * half / fine) + 1, 201)
+        axis = np.linspace(-half, half, n)
+        win = p0 + grid_points(axis, axis)
+        win = win[outside(win)]
+        if win.size:
+            mag = np.abs(ambiguity(geometry, band, p0, win))
+            step = axis[1] - axis[0]
+            seeds += [(win[i], np.array([step, step])) for i in np.argsort(mag)[::-1][:2]]
+    if not seeds:
+        return -np.inf, p0.copy(), image
     level, where = -1.0, p0.copy()
     offsets = np.linspace(-1.0, 1.0, 9)
-    for idx in best:
-        c = pts[idx]
-        span = np.array([dx, dy])
+    for c, span in seeds:
         for _ in range(2):
             cand = c + grid_points(offsets * span[0], offsets * span[1])
             cand = cand[outside(cand)]

@@ -99,6 +99,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     scenario = _load_scenario(args.scenario)
     out = _out_path(args.out)
+    if not scenario.nodes and scenario.robot is not None:
+        return _sim_robot(args, scenario, out)
     duration = args.duration if args.duration is not None else float(scenario.duration)
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("simulating", total=duration)
@@ -111,6 +113,35 @@ def cmd_sim(args: argparse.Namespace) -> int:
             progress=lambda dt: progress.advance(task, dt),
         )
     print(json.dumps({"out": str(out), "messages": n, "duration_s": duration, "seed": args.seed}))
+    return 0
+
+
+def _sim_robot(args: argparse.Namespace, scenario: Any, out: Path) -> int:
+    """``uwbnet sim`` of a ``[robot]`` scenario: every stop and heading (sim_nodes.robot_record)."""
+    from rich.progress import Progress
+
+    from uwbnet.robot_sim_cmd import simulate_robot
+
+    if args.stops is not None and args.stops < 1:
+        raise CliError(f"--stops must be at least 1, got {args.stops}")
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("channel (robot stops)", total=None)
+
+        def report(stage: str, done: int, total: int) -> None:
+            progress.update(task, description=stage, completed=done, total=total)
+
+        result = simulate_robot(
+            args.scenario,
+            scenario,
+            out,
+            seed=args.seed,
+            workers=args.workers,
+            stops=args.stops,
+            snr_db=args.snr,
+            net=args.net,
+            progress=report,
+        )
+    print(json.dumps(result))
     return 0
 
 
@@ -143,6 +174,84 @@ def cmd_ranging(args: argparse.Namespace) -> int:
     from node_agent.offline import range_recording
 
     return _run_offline(args, "ranging", range_recording, method=args.method)
+
+
+def cmd_image(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+    from rich.progress import Progress
+
+    from uwbnet.image_cmd import (
+        ImageOptions,
+        default_grid,
+        make_image,
+        read_observations,
+        scenario_figures,
+        write_npz,
+        write_png,
+    )
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    out = _out_path(args.out)
+    png = _out_path(args.png) if args.png else None
+    scenario = _load_scenario(args.scenario) if args.scenario else None
+    opts = ImageOptions(
+        method=args.method,
+        nx=args.nx,
+        ny=args.ny,
+        bounds=tuple(args.bounds) if args.bounds else None,
+        margin=args.margin,
+        z=args.z,
+        envelope=not args.raw,
+        pattern=args.pattern,
+        gate=args.gate,
+        workers=args.workers,
+    )
+    t0 = time.perf_counter()
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("reading", total=src.stat().st_size)
+        obs, rejected = read_observations(src, lambda n: progress.advance(task, n))
+        grid = default_grid(obs, opts)
+        progress.update(
+            task, description=f"imaging ({args.method})", completed=0, total=grid.nx * grid.ny
+        )
+        t1 = time.perf_counter()
+        img = make_image(obs, grid, opts, lambda n: progress.advance(task, n))
+    t2 = time.perf_counter()
+    write_npz(out, img, grid, args.method)
+    result: dict[str, Any] = {
+        "out": str(out),
+        "method": args.method,
+        "observations": len(obs),
+        "rejected": rejected,
+        "nx": grid.nx,
+        "ny": grid.ny,
+        "read_s": round(t1 - t0, 2),
+        "image_s": round(t2 - t1, 2),
+    }
+    if scenario is not None:
+        result.update(scenario_figures(img, grid, scenario))
+    if png is not None:
+        outlines = []
+        if scenario is not None:
+            outlines = [o.footprint for o in scenario.objects]
+            outlines += [scenario.room.outline] if scenario.room is not None else []
+            outlines += [[w.start, w.end] for w in scenario.walls]
+        write_png(
+            png,
+            img,
+            grid,
+            f"{args.method}: {src.name}",
+            db_range=args.db_range,
+            outlines=outlines,
+            positions=np.unique(obs.rx[:, :2].round(3), axis=0),
+        )
+        result["png"] = str(png)
+    print(json.dumps(result))
+    return 0
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -398,6 +507,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=_positive, help="seconds (default: the scenario's)")
     s.add_argument("--seed", type=int, default=1, help="simulation seed")
     s.add_argument("--net", default="demo", help="network name in the topics")
+    s.add_argument("--stops", type=int, help="[robot] scenarios: only the first N stops")
+    s.add_argument(
+        "--snr", type=float, default=30.0, help="[robot] scenarios: in-band SNR, dB (30)"
+    )
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        choices=range(1, 65),
+        metavar="N",
+        help="[robot] scenarios: processes computing the channel (2)",
+    )
     s.set_defaults(func=cmd_sim)
 
     t = sub.add_parser("track", help="node DSP and fusion over a recording, offline")
@@ -422,6 +543,35 @@ def build_parser() -> argparse.ArgumentParser:
         "threshold, strongest peak",
     )
     r.set_defaults(func=cmd_ranging)
+
+    im = sub.add_parser("image", help="multistatic image of a recording's impulse responses")
+    im.add_argument("recording", help="input MCAP recording (node_info, ir, optional poses)")
+    im.add_argument("--out", required=True, help="output .npz (img, x0, y0, dx, dy)")
+    im.add_argument(
+        "--method",
+        choices=("kirchhoff", "xcorr"),
+        default="kirchhoff",
+        help="Kirchhoff migration (eq. 17) or cross-correlated imaging (eq. 18)",
+    )
+    im.add_argument("--png", help="also save the image (dB re maximum) as PNG")
+    im.add_argument("--nx", type=int, default=400, choices=range(2, 4097), metavar="N")
+    im.add_argument("--ny", type=int, default=400, choices=range(2, 4097), metavar="N")
+    im.add_argument(
+        "--bounds",
+        type=float,
+        nargs=4,
+        metavar=("XMIN", "XMAX", "YMIN", "YMAX"),
+        help="image extent, m (default: the antennas' extent plus --margin)",
+    )
+    im.add_argument("--margin", type=float, default=1.0, help="m around the antennas (1)")
+    im.add_argument("--z", type=float, help="height of the image plane, m (mean antenna height)")
+    im.add_argument("--raw", action="store_true", help="migrate raw samples, not envelopes")
+    im.add_argument("--pattern", action="store_true", help="weight by the antenna patterns")
+    im.add_argument("--gate", type=float, default=0.3, help="m of path after the direct coupling")
+    im.add_argument("--workers", type=int, default=2, choices=range(1, 65), metavar="N")
+    im.add_argument("--scenario", help="scenario of the recording: print quality figures")
+    im.add_argument("--db-range", type=_positive, default=30.0, help="PNG colour range, dB")
+    im.set_defaults(func=cmd_image)
 
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
@@ -518,6 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that are the user's input, reported as one line."""
+    from fusion_center.image_input import ImagingError
     from fusion_center.offline import TrackingError
     from node_agent.drivers.base import DriverError
     from node_agent.offline import RangingError
@@ -531,6 +682,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ProtocolError,
         ScenarioError,
         TrackingError,
+        ImagingError,
         RangingError,
         DriverError,
         OSError,

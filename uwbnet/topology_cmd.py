@@ -305,10 +305,12 @@ def optimize_scenario(
     )
     opt = GreedyPlacementOptimizer(band, search_area, search_refs)
     t0 = time.perf_counter()
-    result = opt.optimize(cands, k, fixed)
+    naive_sel = even_selection(len(cands), k)
+    result = opt.optimize(cands, k, fixed, starts=[naive_sel])
     search_s = time.perf_counter() - t0
+    naive_search_cost, _ = opt.evaluate(cands, naive_sel, fixed)
     layouts: dict[str, tuple[NetworkGeometry, tuple[int, ...] | None]] = {
-        "naive": (compose_network(cands, even_selection(len(cands), k), fixed), None),
+        "naive": (compose_network(cands, naive_sel, fixed), None),
         "optimized": (compose_network(cands, result.selection, fixed), result.selection),
     }
     if not robot and not add and k == len(scenario.nodes):
@@ -337,6 +339,9 @@ def optimize_scenario(
         evaluations=result.evaluations,
         search_s=round(search_s, 1),
         search_cost=round(result.cost, 2),
+        naive_search_cost=round(naive_search_cost, 2),
+        search_references=list(search_refs),
+        search_grid=[search_area.nx, search_area.ny],
     )
     if png is not None:
         for name in ("naive", "optimized"):

@@ -184,8 +184,11 @@ class GreedyPlacementOptimizer:
         candidates: SiteCandidates,
         k: int,
         fixed: NetworkGeometry | None = None,
+        starts: Sequence[Sequence[int]] = (),
     ) -> PlacementResult:
-        """Choose ``k`` sites.
+        """Choose ``k`` sites: greedy selection, then local refinement of the greedy result and
+        of every selection in ``starts`` (e.g. the naive placement); the best one wins, so the
+        result is never worse than a given start under the search objective.
 
         Raises
         ------
@@ -215,6 +218,37 @@ class GreedyPlacementOptimizer:
             cost = best[0]
             chosen.append(best[1])
             history.append((f"add {step + 1}", tuple(chosen), cost))
+        best_sel, best_cost = self._refine(candidates, chosen, cost, fixed, history, "greedy")
+        for n, start in enumerate(starts):
+            sel = [int(c) for c in start]
+            if len(set(sel)) != k:
+                raise ValueError(f"start {n}: need {k} distinct sites")
+            j, _ = self.evaluate(candidates, sel, fixed)
+            history.append((f"start {n + 1}", tuple(sel), j))
+            sel, j = self._refine(candidates, sel, j, fixed, history, f"start {n + 1}")
+            if j < best_cost:
+                best_sel, best_cost = sel, j
+        chosen = best_sel
+        cost, evaluation = self.evaluate(candidates, chosen, fixed)
+        return PlacementResult(
+            selection=tuple(chosen),
+            cost=cost,
+            evaluation=evaluation,
+            history=history,
+            evaluations=len(self._cache),
+        )
+
+    def _refine(
+        self,
+        candidates: SiteCandidates,
+        chosen: list[int],
+        cost: float,
+        fixed: NetworkGeometry | None,
+        history: list[tuple[str, tuple[int, ...], float]],
+        label: str,
+    ) -> tuple[list[int], float]:
+        """1-swap local search: replace a chosen site by one of its nearest unused sites
+        while the objective drops, at most ``sweeps`` passes."""
         pos = candidates.positions
         for sweep in range(self.sweeps):
             improved = False
@@ -228,17 +262,10 @@ class GreedyPlacementOptimizer:
                     j, _ = self.evaluate(candidates, trial, fixed)
                     if j < cost - 1e-9:
                         chosen, cost, improved = trial, j, True
-                        history.append((f"swap {sweep + 1}", tuple(chosen), cost))
+                        history.append((f"{label} swap {sweep + 1}", tuple(chosen), cost))
             if not improved:
                 break
-        cost, evaluation = self.evaluate(candidates, chosen, fixed)
-        return PlacementResult(
-            selection=tuple(chosen),
-            cost=cost,
-            evaluation=evaluation,
-            history=history,
-            evaluations=len(self._cache),
-        )
+        return chosen, cost
 
 
 def even_selection(n_candidates: int, k: int) -> tuple[int, ...]:

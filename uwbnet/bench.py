@@ -96,6 +96,13 @@ def bench_fusion(seed: int = 0) -> dict[str, Any]:
     return {"bench": "fusion", **run(seed=seed), **_machine()}
 
 
+def bench_topology(seed: int = 0) -> dict[str, Any]:
+    """Ambiguity function on a 200 x 200 grid over the band (``uwbnet.bench_topology``)."""
+    from uwbnet.bench_topology import run
+
+    return {"bench": "topology", **run(seed=seed), **_machine()}
+
+
 def bench_fuzz(seed: int = 0) -> dict[str, Any]:
     """Fuzz the protocol decoder and the serial frame parser with atheris (``uwbnet.fuzz``),
     ``UWBNET_FUZZ_RUNS`` inputs each (default 500000): inputs run, crashes, hangs."""
@@ -212,6 +219,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "imaging": bench_imaging,
     "sim": bench_sim,
     "web": bench_web,
+    "topology": bench_topology,
 }
 
 __all__ = ["BENCHES"]

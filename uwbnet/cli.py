@@ -462,6 +462,47 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_topology(args: argparse.Namespace) -> int:
+    from uwbnet.topology_cmd import evaluate_scenario, optimize_scenario, print_human
+
+    # 'topology SCENARIO' and 'topology optimize SCENARIO' share one parser: argparse cannot
+    # tell a sub-command from an optional positional, so the first word decides here.
+    optimize = args.scenario == "optimize"
+    name = args.optimize_scenario if optimize else args.scenario
+    if optimize and (name is None or args.sensors is None):
+        raise CliError("usage: uwbnet topology optimize SCENARIO --sensors K")
+    if not optimize and args.optimize_scenario is not None:
+        raise CliError(f"unexpected argument {args.optimize_scenario!r} after the scenario")
+    if not optimize and (args.sensors is not None or args.add):
+        raise CliError("--sensors and --add belong to 'uwbnet topology optimize'")
+    if not 10 <= args.grid <= 2000 or min(args.refs) < 1 or max(args.refs) > 50:
+        raise CliError("--grid must be 10..2000 and --refs 1..50 points per axis")
+    scenario = _load_scenario(name)
+    png = _out_path(args.png) if args.png else None
+    refs = tuple(args.refs)
+    try:
+        if optimize:
+            result = optimize_scenario(
+                scenario,
+                args.sensors,
+                spacing=args.spacing,
+                add=args.add,
+                grid=args.grid,
+                references=refs,
+                png=png,
+            )
+        else:
+            result = evaluate_scenario(
+                scenario, grid=args.grid, references=refs, links=args.links, png=png
+            )
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if not args.json:
+        print_human(result)
+    print(json.dumps(result))
+    return 0
+
+
 def _rate(value: str) -> float:
     if value in ("inf", "max"):
         return math.inf
@@ -511,7 +552,17 @@ def cmd_channel_dataset(args: argparse.Namespace) -> int:
 
 #: The benchmarks of ``uwbnet bench`` (the keys of ``uwbnet.bench.BENCHES``, which a test
 #: checks): listed here so that parsing the command line imports no benchmark module.
-BENCH_NAMES = ("channel", "dsp", "fusion", "fuzz", "imaging", "localization", "sim", "web")
+BENCH_NAMES = (
+    "channel",
+    "dsp",
+    "fusion",
+    "fuzz",
+    "imaging",
+    "localization",
+    "sim",
+    "topology",
+    "web",
+)
 
 
 # --- parser ----------------------------------------------------------------------------------
@@ -707,9 +758,32 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
     b.add_argument("name", choices=BENCH_NAMES)
+    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim", "topology"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
+
+    tp = sub.add_parser(
+        "topology",
+        help="resolution and ghost maps of a deployment (ambiguity function); placement",
+        usage="uwbnet topology SCENARIO [options]\n"
+        "       uwbnet topology optimize SCENARIO --sensors K [options]",
+        description="'uwbnet topology SCENARIO': resolution and ghost-level maps of the "
+        "scenario's deployment. 'uwbnet topology optimize SCENARIO --sensors K': choose K "
+        "sensor sites on the walls (greedy + local refinement) and compare with a naive "
+        "placement.",
+    )
+    tp.add_argument("scenario", help="shipped scenario name or TOML path, or 'optimize'")
+    tp.add_argument("optimize_scenario", nargs="?", help=argparse.SUPPRESS)
+    tp.add_argument("--png", help="save the maps to this PNG file")
+    tp.add_argument("--json", action="store_true", help="print only the JSON line")
+    tp.add_argument("--grid", type=int, default=200, help="ghost-search grid points per axis")
+    tp.add_argument("--refs", type=int, nargs=2, default=(8, 6), metavar=("MX", "MY"))
+    tp.add_argument("--links", choices=("all", "own"), default="all", help="who hears whom")
+    tp.add_argument("--sensors", type=int, help="optimize: number of sites to place")
+    tp.add_argument("--spacing", type=_positive, default=1.0, help="optimize: site spacing, m")
+    tp.add_argument("--add", action="store_true", help="optimize: add to the scenario's nodes")
+    tp.set_defaults(func=cmd_topology)
 
     c = sub.add_parser("channel", help="hybrid channel model: figures, plots, data sets")
     csub = c.add_subparsers(dest="channel_command", required=True, parser_class=_Parser)

@@ -99,6 +99,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     scenario = _load_scenario(args.scenario)
     out = _out_path(args.out)
+    if not scenario.nodes and scenario.robot is not None:
+        return _sim_robot(args, scenario, out)
     duration = args.duration if args.duration is not None else float(scenario.duration)
     with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("simulating", total=duration)
@@ -111,6 +113,35 @@ def cmd_sim(args: argparse.Namespace) -> int:
             progress=lambda dt: progress.advance(task, dt),
         )
     print(json.dumps({"out": str(out), "messages": n, "duration_s": duration, "seed": args.seed}))
+    return 0
+
+
+def _sim_robot(args: argparse.Namespace, scenario: Any, out: Path) -> int:
+    """``uwbnet sim`` of a ``[robot]`` scenario: every stop and heading (sim_nodes.robot_record)."""
+    from rich.progress import Progress
+
+    from uwbnet.robot_sim_cmd import simulate_robot
+
+    if args.stops is not None and args.stops < 1:
+        raise CliError(f"--stops must be at least 1, got {args.stops}")
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("channel (robot stops)", total=None)
+
+        def report(stage: str, done: int, total: int) -> None:
+            progress.update(task, description=stage, completed=done, total=total)
+
+        result = simulate_robot(
+            args.scenario,
+            scenario,
+            out,
+            seed=args.seed,
+            workers=args.workers,
+            stops=args.stops,
+            snr_db=args.snr,
+            net=args.net,
+            progress=report,
+        )
+    print(json.dumps(result))
     return 0
 
 
@@ -357,6 +388,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=_positive, help="seconds (default: the scenario's)")
     s.add_argument("--seed", type=int, default=1, help="simulation seed")
     s.add_argument("--net", default="demo", help="network name in the topics")
+    s.add_argument("--stops", type=int, help="[robot] scenarios: only the first N stops")
+    s.add_argument(
+        "--snr", type=float, default=30.0, help="[robot] scenarios: in-band SNR, dB (30)"
+    )
+    s.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        choices=range(1, 65),
+        metavar="N",
+        help="[robot] scenarios: processes computing the channel (2)",
+    )
     s.set_defaults(func=cmd_sim)
 
     t = sub.add_parser("track", help="node DSP and fusion over a recording, offline")

@@ -129,8 +129,10 @@ def test_bad_scenario_geometry_is_one_line_naming_the_element(tmp_path: Path) ->
     proc = uwbnet("sim", str(bad), "--duration", "1", "--out", str(tmp_path / "x.mcap"))
     assert_one_line_error(proc, "nodes[0].antennas.tx (bat1)", "inside walls[2]")
     assert not (tmp_path / "x.mcap").exists()
-    proc = uwbnet("sim", "room_pillar", "--out", str(tmp_path / "x.mcap"))
-    assert_one_line_error(proc, "no static [[nodes]]", "uwbnet channel dataset room_pillar")
+    # A [robot] scenario is simulated by sim_nodes.robot_record; its own options are checked.
+    proc = uwbnet("sim", "room_pillar", "--stops", "0", "--out", str(tmp_path / "x.mcap"))
+    assert_one_line_error(proc, "--stops must be at least 1")
+    assert not (tmp_path / "x.mcap").exists()
 
 
 def test_channel_dataset_params_and_plot(tmp_path: Path) -> None:

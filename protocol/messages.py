@@ -134,7 +134,8 @@ class Ir(Message):
     """One acquisition: impulse responses of transmitter ``tx`` at this node's receivers ``rx``.
 
     ``h`` is ``(len(rx), n)``, ``<f4`` real or ``<c8`` complex baseband, sample k at
-    ``t0 + k/fs`` after emission (``node_info.radar``).
+    ``t0 + k/fs`` after emission (``node_info.radar``). Optional ``pose`` (mobile nodes) and
+    ``odom`` (odometry increment since the previous acquisition, docs/mapping.md).
     """
 
     KIND: ClassVar[str] = "ir"
@@ -145,6 +146,10 @@ class Ir(Message):
     frame: int = wire(Int())
     h: npt.NDArray[Any] = wire(Array(("<f4", "<c8"), ndim=2))
     pose: tuple[float, float, float, float] | None = optional(Vec(4))
+    #: Optional odometry of a mobile node: ``(dx, dy, dyaw)`` driven since its previous
+    #: acquisition, in the node frame of that acquisition (m, m, rad), as its wheels measured
+    #: it (slip included). Used by the SLAM of :mod:`fusion_center.mapping`.
+    odom: tuple[float, float, float] | None = optional(Vec(3))
 
     def __post_init__(self) -> None:
         if self.h.shape[0] != len(self.rx):

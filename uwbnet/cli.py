@@ -176,6 +176,19 @@ def cmd_ranging(args: argparse.Namespace) -> int:
     return _run_offline(args, "ranging", range_recording, method=args.method)
 
 
+def cmd_map(args: argparse.Namespace) -> int:
+    from functools import partial
+
+    from uwbnet.map_cmd import map_recording
+
+    scenario = _load_scenario(args.eval) if args.eval else None
+    png = str(_out_path(args.png)) if args.png else None
+    run = partial(
+        map_recording, particles=args.particles, robot=args.robot, png=png, scenario=scenario
+    )
+    return _run_offline(args, "mapping", run)
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from fusion_center.offline import evaluate_files
 
@@ -425,6 +438,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.set_defaults(func=cmd_ranging)
 
+    mp = sub.add_parser("map", help="UWB SLAM of a robot recording: walls, corners, points, path")
+    mp.add_argument("recording", help="input MCAP recording (a robot's ir, optional ir.odom)")
+    mp.add_argument("--out", required=True, help="output map.json (first-pose frame)")
+    mp.add_argument("--png", help="also draw the map to this PNG")
+    mp.add_argument(
+        "--association",
+        dest="method",
+        choices=("measurement", "state"),
+        default="measurement",
+        help="data association (6.3): echo groups (measurement space) or per pair (state space)",
+    )
+    mp.add_argument("--particles", type=int, default=40, help="particles (40)")
+    mp.add_argument("--robot", help="robot node id (default: the first mobile node with ir)")
+    mp.add_argument("--eval", metavar="SCENARIO", help="score the map against this scenario")
+    mp.set_defaults(func=cmd_map)
+
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
     e.add_argument("--tracks", required=True, help="tracks JSONL from 'uwbnet track'")
@@ -504,6 +533,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from protocol import ProtocolError
     from sim_nodes.scene import ScenarioError
     from uwbnet.config import ConfigError
+    from uwbnet.map_cmd import MappingError
 
     return (
         CliError,
@@ -512,6 +542,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         ScenarioError,
         TrackingError,
         RangingError,
+        MappingError,
         DriverError,
         OSError,
     )

@@ -33,7 +33,7 @@ HEADER = ["v", "kind", "src", "seq", "t"]
 #: Field order of each kind as PROTOCOL.md lists it (required, then optional).
 CONTRACT_ORDER = {
     "node_info": ["role", "pose", "mobile", "antennas", "radar"],
-    "ir": ["tx", "rx", "slot", "frame", "h", "pose"],
+    "ir": ["tx", "rx", "slot", "frame", "h", "pose", "odom"],
     "detections": ["tx", "frame", "ranges", "amplitudes", "positions", "cov"],
     "status": ["uptime", "acquired", "published", "dropped", "late_slots", "decode_errors", "cpu"],
     "tdma_schedule": ["frame_period", "epoch", "slots"],

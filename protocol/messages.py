@@ -290,6 +290,27 @@ class Image(Message):
 
 
 @_frozen
+class Map(Message):
+    """A SLAM map of a robot (fusion_center.mapping): wall segments ``[x1, y1, x2, y2]``,
+    corners and point scatterers ``[x, y]`` (m) in the world frame, where the robot's first
+    pose ``origin`` ([x, y, z, yaw], world) anchors the map (docs/mapping.md)."""
+
+    KIND: ClassVar[str] = "map"
+
+    robot: str = wire(Str())
+    origin: tuple[float, float, float, float] = wire(Vec(4))
+    walls: npt.NDArray[np.float64] = wire(Array(("<f8",), ndim=2))
+    corners: npt.NDArray[np.float64] = wire(Array(("<f8",), ndim=2))
+    points: npt.NDArray[np.float64] = wire(Array(("<f8",), ndim=2))
+
+    def __post_init__(self) -> None:
+        for name, cols in (("walls", 4), ("corners", 2), ("points", 2)):
+            a = getattr(self, name)
+            if a.shape[1:] != (cols,):
+                raise_shape(f"field {name!r}: shape {list(a.shape)} is not [k, {cols}]")
+
+
+@_frozen
 class Target:
     """A true target state (simulation only)."""
 
@@ -314,7 +335,7 @@ class Truth(Message):
 #: kind -> message class.
 KINDS: dict[str, type[Message]] = {
     cls.KIND: cls
-    for cls in (NodeInfo, Ir, Detections, Status, TdmaSchedule, Tracks, Poses, Image, Truth)
+    for cls in (NodeInfo, Ir, Detections, Status, TdmaSchedule, Tracks, Poses, Image, Map, Truth)
 }
 
 

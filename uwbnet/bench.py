@@ -93,6 +93,13 @@ def bench_fusion(seed: int = 0) -> dict[str, Any]:
     return {"bench": "fusion", **run(seed=seed), **_machine()}
 
 
+def bench_slam(seed: int = 0) -> dict[str, Any]:
+    """Robot acquisitions per second through the UWB SLAM (``uwbnet.bench_slam``)."""
+    from uwbnet.bench_slam import run
+
+    return {"bench": "slam", **run(seed=seed), **_machine()}
+
+
 def bench_fuzz(seed: int = 0) -> dict[str, Any]:
     """Fuzz the protocol decoder and the serial frame parser with atheris (``uwbnet.fuzz``),
     ``UWBNET_FUZZ_RUNS`` inputs each (default 500000): inputs run, crashes, hangs."""
@@ -199,6 +206,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
     "sim": bench_sim,
+    "slam": bench_slam,
 }
 
 __all__ = ["BENCHES"]

@@ -52,8 +52,8 @@ class MapperConfig:
     min_range: float = 1.2
     max_range: float = 10.0
     threshold: float = 8.0
-    dynamic_db: float = 30.0
-    max_echoes: int = 8
+    dynamic_db: float = 12.0
+    max_echoes: int = 4
     pair_gate: float = 0.6
     background_alpha: float = 0.0
     warmup: int = 24

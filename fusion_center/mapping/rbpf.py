@@ -112,7 +112,7 @@ class SlamConfig:
 
     n_particles: int = 40
     association: str = "measurement"
-    range_sigma: float = 0.03
+    range_sigma: float = 0.05
     new_log_density: float = -6.0
     kind_prior: tuple[float, float, float] = (0.5, 0.2, 0.3)
     fov: float = np.radians(60.0)

@@ -40,6 +40,7 @@ CONTRACT_ORDER = {
     "tracks": ["tracks", "n_estimate"],
     "poses": ["poses"],
     "image": ["x0", "y0", "dx", "dy", "method", "img"],
+    "map": ["robot", "origin", "walls", "corners", "points"],
     "truth": ["targets", "nodes"],
 }
 NESTED_ORDER = {

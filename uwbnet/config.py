@@ -174,6 +174,9 @@ class FusionFile(_Model):
     tracks_jsonl: str | None = Field(
         default=None, description="also write every fusion update to this JSONL file"
     )
+    mapping: bool = Field(
+        default=False, description="run the UWB SLAM of robots' ir (poses and map, docs/mapping.md)"
+    )
     zenoh: ZenohModel = Field(default_factory=lambda: ZenohModel(mode="router"))
 
 

@@ -53,20 +53,13 @@ class MapStats:
 
 
 def robot_geometry(info: NodeInfo, rx: tuple[str, ...]) -> np.ndarray:
-    """tx, rx1, rx2 positions (x, y in the robot frame) of a robot's ``node_info``.
+    """tx, rx1, rx2 positions (x, y in the robot frame) of a robot's ``node_info``."""
+    from fusion_center.mapping.pipeline import array_geometry
 
-    Raises
-    ------
-    MappingError
-        Not one transmitter, or ``rx`` does not name two of its receivers.
-    """
-    tx = [a for a in info.antennas.values() if a.tx]
-    if len(tx) != 1:
-        raise MappingError(f"robot {info.src}: needs exactly one transmitting antenna")
-    if len(rx) != 2 or any(r not in info.antennas for r in rx):
-        raise MappingError(f"robot {info.src}: ir needs two known receivers, got {list(rx)}")
-    pos = [tx[0].pos] + [info.antennas[r].pos for r in rx]
-    return np.array([[p[0], p[1]] for p in pos], float)
+    try:
+        return array_geometry(info.antennas, rx)
+    except ValueError as exc:
+        raise MappingError(f"robot {info.src}: {exc}") from None
 
 
 def _make_mapper(info: NodeInfo, rx: tuple[str, ...], particles: int, association: str) -> Any:

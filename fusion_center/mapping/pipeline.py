@@ -7,7 +7,9 @@ center's runtime share: one call per ``ir`` acquisition, time as an argument, no
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -18,6 +20,31 @@ from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.rbpf import PoseEstimate2D, RbpfSlam, SlamConfig
 
 FloatArray = npt.NDArray[np.float64]
+
+
+def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
+    """tx, rx1, rx2 positions (x, y in the robot frame, m) from a ``node_info.antennas`` map.
+
+    Parameters
+    ----------
+    antennas : mapping name -> antenna
+        Objects with ``pos`` ([x, y, z], node frame) and ``tx`` (bool), as in
+        :class:`protocol.messages.Antenna`.
+    rx : sequence of str
+        The receivers of the ``ir`` rows, in row order.
+
+    Raises
+    ------
+    ValueError
+        Not exactly one transmitter, or ``rx`` does not name two known receivers.
+    """
+    tx = [a for a in antennas.values() if a.tx]
+    if len(tx) != 1:
+        raise ValueError("needs exactly one transmitting antenna")
+    if len(rx) != 2 or any(r not in antennas for r in rx):
+        raise ValueError(f"ir needs two known receivers, got {list(rx)}")
+    pos = [tx[0].pos] + [antennas[r].pos for r in rx]
+    return np.array([[p[0], p[1]] for p in pos], float)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

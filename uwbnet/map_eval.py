@@ -5,10 +5,12 @@ objects) and moved into the frame of the robot's first true pose, the frame of m
 
 Figures (metres, degrees):
 
-* walls: each mapped wall is matched to the true face (room wall or object side) with the
-  closest line among those within 15 degrees and overlapping it; ``position`` is the distance
-  of the mapped segment's midpoint from the true line, ``orientation`` the angle between them.
-  ``outline_coverage`` is the fraction of the room outline's length covered by matched walls.
+* walls: a mapped wall matches a true face (room wall or object side) whose line is within
+  15 degrees and 0.5 m of it and which it overlaps; for every true face with a match, the
+  closest mapped wall gives ``position`` (distance of its midpoint from the true line) and
+  ``orientation`` (angle between them); ``unmatched`` counts mapped walls that match no face
+  (ghosts: multipath, back faces of thick walls beyond 0.5 m) and ``outline_coverage`` is the
+  fraction of the room outline's length covered by matched walls.
 * corners: concave corners of the truth (room corners, object sides meeting a room wall); for
   each, the nearest mapped corner within 0.5 m.
 * points: convex edges of the objects (their vertical edges away from the room walls); for each
@@ -110,43 +112,47 @@ def evaluate_map(
     edges = _to_frame(g["edges"], first_pose)
     out: dict[str, Any] = {}
     walls = np.array(doc["walls"], float).reshape(-1, 4)
-    pos_err, ang_err, unmatched = [], [], 0
-    covered = np.zeros(len(room))
     fe = faces[:, 2:] - faces[:, :2]
     fa = np.arctan2(fe[:, 1], fe[:, 0])
     fn = np.column_stack([-np.sin(fa), np.cos(fa)])
-    for w in walls:
+    flen = np.linalg.norm(fe, axis=1)
+    # match[w, f]: mapped wall w lies along true face f (15 deg, 0.5 m, overlapping)
+    off = np.full((len(walls), len(faces)), np.inf)
+    dang = np.zeros((len(walls), len(faces)))
+    covered = np.zeros(len(faces))
+    for i, w in enumerate(walls):
         e = w[2:] - w[:2]
         a = math.atan2(e[1], e[0])
-        dang = np.abs((fa - a + np.pi / 2) % np.pi - np.pi / 2)
+        dang[i] = np.abs((fa - a + np.pi / 2) % np.pi - np.pi / 2)
         mid = 0.5 * (w[:2] + w[2:])
-        off = np.abs(np.sum((mid - faces[:, :2]) * fn, 1))
-        # overlap: the mapped midpoint projects inside the face (with 0.5 m slack)
-        t = np.sum((mid - faces[:, :2]) * fe, 1) / np.sum(fe * fe, 1)
-        length = np.linalg.norm(fe, axis=1)
-        inside = (t * length > -0.5) & ((1 - t) * length > -0.5)
-        ok = (dang < np.radians(15)) & inside & (off < 0.5)
-        if not np.any(ok):
-            unmatched += 1
-            continue
-        i = np.flatnonzero(ok)[np.argmin(off[ok])]
-        pos_err.append(float(off[i]))
-        ang_err.append(float(np.degrees(dang[i])))
-        for j, r in enumerate(room):
-            if np.allclose(r, faces[i]):
-                re = r[2:] - r[:2]
-                ln = np.linalg.norm(re)
-                t1 = np.dot(w[:2] - r[:2], re) / ln
-                t2 = np.dot(w[2:] - r[:2], re) / ln
-                lo, hi = sorted((t1, t2))
-                covered[j] += max(0.0, min(hi, ln) - max(lo, 0.0))
-    room_len = np.linalg.norm(room[:, 2:] - room[:, :2], axis=1)
+        o = np.abs(np.sum((mid - faces[:, :2]) * fn, 1))
+        t = np.sum((mid - faces[:, :2]) * fe, 1) / flen
+        ok = (dang[i] < np.radians(15)) & (t > -0.5) & (t < flen + 0.5) & (o < 0.5)
+        off[i] = np.where(ok, o, np.inf)
+        if np.any(ok):
+            f = int(np.argmin(off[i]))
+            t1 = np.dot(w[:2] - faces[f, :2], fe[f]) / flen[f]
+            t2 = np.dot(w[2:] - faces[f, :2], fe[f]) / flen[f]
+            lo, hi = sorted((t1, t2))
+            covered[f] += max(0.0, min(hi, flen[f]) - max(lo, 0.0))
+    pos_err, ang_err = [], []
+    best_of_face = np.argmin(off, axis=0) if len(walls) else np.zeros(0, int)
+    for f in range(len(faces)):
+        if len(walls) and np.isfinite(off[best_of_face[f], f]):
+            pos_err.append(float(off[best_of_face[f], f]))
+            ang_err.append(float(np.degrees(dang[best_of_face[f], f])))
+    matched = np.isfinite(off).any(axis=1) if len(walls) else np.zeros(0, bool)
+    n_room = len(room)  # the outline's faces come first in ``faces``
     out["walls"] = {
         "mapped": len(walls),
-        "unmatched": unmatched,
+        "unmatched": int((~matched).sum()),
+        "true_faces": len(faces),
+        "faces_found": len(pos_err),
         "position_m": _stats(pos_err),
         "orientation_deg": _stats(ang_err),
-        "outline_coverage": round(float(np.minimum(covered, room_len).sum() / room_len.sum()), 3),
+        "outline_coverage": round(
+            float(np.minimum(covered[:n_room], flen[:n_room]).sum() / flen[:n_room].sum()), 3
+        ),
     }
     mc = np.array(doc["corners"], float).reshape(-1, 2)
     c_err = []

@@ -322,8 +322,7 @@ class RbpfSlam:
         if idx is None:
             mean, cov, active = self.lm.mean, self.lm.cov, self.lm.active
         else:
-            rows = np.arange(mean_rows := self.pose.shape[0])[:, None]
-            del mean_rows
+            rows = np.arange(self.pose.shape[0])[:, None]
             mean = self.lm.mean[rows, idx[:, None]]
             cov = self.lm.cov[rows, idx[:, None]]
             active = self.lm.active[rows, idx[:, None]]
@@ -376,10 +375,10 @@ class RbpfSlam:
         use_groups = self.config.association == "measurement" and groups is not None
         gids = np.asarray(groups, np.int64) if use_groups else None
         tx, rx, yaw = self._array_world()
-        # Inverse models in the array frame, once per pair (the same for every particle).
-        zb = z - 0.0  # biases are per particle; the inverse uses the raw pair
-        image_body = invert_image(zb, self._rx_body)
-        point_body = invert_point(zb, self._rx_body)
+        # Inverse models in the array frame, once per pair (the same for every particle; the
+        # per-particle bias is small against the 2-sigma initial covariance).
+        image_body = invert_image(z, self._rx_body)
+        point_body = invert_point(z, self._rx_body)
         for m in range(z.shape[0]):
             if not np.all(np.isfinite(image_body[m])):
                 continue
@@ -414,7 +413,7 @@ class RbpfSlam:
         if np.all(known_ok):
             # measurement space: the group's landmark, no sampling
             choice = known
-            pred, jac, s, vis = self._predict_all(choice, tx, rx, yaw)
+            pred, jac, s, _ = self._predict_all(choice, tx, rx, yaw)
             kind_ll = self._kind_loglik(z, pred, s)  # (P, 1, 3)
             acc = self.lm.loglik[rows, choice][:, None]
             ll = self._mixture(kind_ll, acc)[:, 0]

@@ -11,7 +11,7 @@ PREFIX = "uwbnet"
 #: Leaves under ``uwbnet/{net}/node/{node}/`` and the message kind each carries.
 NODE_LEAVES = {"info": "node_info", "ir": "ir", "det": "detections", "status": "status"}
 #: Leaves under ``uwbnet/{net}/fusion/``.
-FUSION_LEAVES = {"tracks": "tracks", "poses": "poses", "image": "image"}
+FUSION_LEAVES = {"tracks": "tracks", "poses": "poses", "image": "image", "map": "map"}
 
 
 def _check_id(what: str, value: str) -> str:
@@ -48,7 +48,7 @@ def schedule_key(net: str) -> str:
 
 
 def fusion_key(net: str, leaf: str) -> str:
-    """``uwbnet/{net}/fusion/{leaf}``, leaf one of tracks, poses, image."""
+    """``uwbnet/{net}/fusion/{leaf}``, leaf one of tracks, poses, image, map."""
     if leaf not in FUSION_LEAVES:
         raise KeyExprError(f"unknown fusion leaf {leaf!r}")
     return f"{PREFIX}/{_check_id('net', net)}/fusion/{leaf}"

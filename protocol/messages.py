@@ -134,7 +134,8 @@ class Ir(Message):
     """One acquisition: impulse responses of transmitter ``tx`` at this node's receivers ``rx``.
 
     ``h`` is ``(len(rx), n)``, ``<f4`` real or ``<c8`` complex baseband, sample k at
-    ``t0 + k/fs`` after emission (``node_info.radar``).
+    ``t0 + k/fs`` after emission (``node_info.radar``). Optional ``pose`` (mobile nodes) and
+    ``odom`` (odometry increment since the previous acquisition, docs/mapping.md).
     """
 
     KIND: ClassVar[str] = "ir"
@@ -145,6 +146,10 @@ class Ir(Message):
     frame: int = wire(Int())
     h: npt.NDArray[Any] = wire(Array(("<f4", "<c8"), ndim=2))
     pose: tuple[float, float, float, float] | None = optional(Vec(4))
+    #: Optional odometry of a mobile node: ``(dx, dy, dyaw)`` driven since its previous
+    #: acquisition, in the node frame of that acquisition (m, m, rad), as its wheels measured
+    #: it (slip included). Used by the SLAM of :mod:`fusion_center.mapping`.
+    odom: tuple[float, float, float] | None = optional(Vec(3))
 
     def __post_init__(self) -> None:
         if self.h.shape[0] != len(self.rx):
@@ -300,6 +305,27 @@ class Image(Message):
 
 
 @_frozen
+class Map(Message):
+    """A SLAM map of a robot (fusion_center.mapping): wall segments ``[x1, y1, x2, y2]``,
+    corners and point scatterers ``[x, y]`` (m) in the world frame, where the robot's first
+    pose ``origin`` ([x, y, z, yaw], world) anchors the map (docs/mapping.md)."""
+
+    KIND: ClassVar[str] = "map"
+
+    robot: str = wire(Str())
+    origin: tuple[float, float, float, float] = wire(Vec(4))
+    walls: npt.NDArray[np.float64] = wire(Array(("<f8",), ndim=2))
+    corners: npt.NDArray[np.float64] = wire(Array(("<f8",), ndim=2))
+    points: npt.NDArray[np.float64] = wire(Array(("<f8",), ndim=2))
+
+    def __post_init__(self) -> None:
+        for name, cols in (("walls", 4), ("corners", 2), ("points", 2)):
+            a = getattr(self, name)
+            if a.shape[1:] != (cols,):
+                raise_shape(f"field {name!r}: shape {list(a.shape)} is not [k, {cols}]")
+
+
+@_frozen
 class Target:
     """A true target state (simulation only)."""
 
@@ -324,7 +350,7 @@ class Truth(Message):
 #: kind -> message class.
 KINDS: dict[str, type[Message]] = {
     cls.KIND: cls
-    for cls in (NodeInfo, Ir, Detections, Status, TdmaSchedule, Tracks, Poses, Image, Truth)
+    for cls in (NodeInfo, Ir, Detections, Status, TdmaSchedule, Tracks, Poses, Image, Map, Truth)
 }
 
 

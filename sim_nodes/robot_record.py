@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -140,6 +141,61 @@ def frequency_to_ir(
     return np.fft.irfft(spec, n_fft, axis=-1)[..., :n].astype(np.float32)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OdometrySlip:
+    """Noise of the robot's wheel odometry (standard deviations, SI units).
+
+    Attributes
+    ----------
+    translation : float
+        Per metre driven, m/m.
+    rotation : float
+        Per radian turned, rad/rad.
+    heading_per_metre : float
+        Heading error per metre driven (wheel slip on uneven floors), rad/m.
+    floor : tuple of float
+        Per acquisition, (m, rad).
+    """
+
+    translation: float = 0.02
+    rotation: float = 0.03
+    heading_per_metre: float = math.radians(1.0)
+    floor: tuple[float, float] = (0.002, math.radians(0.1))
+
+
+def odometry_increments(
+    poses: npt.ArrayLike, rng: np.random.Generator | None = None, slip: OdometrySlip | None = None
+) -> npt.NDArray[np.float64]:
+    """Odometry ``(dx, dy, dyaw)`` of each acquisition since the previous one.
+
+    The true increment in the previous robot frame, plus Gaussian slip noise whose standard
+    deviation grows with the distance driven and the angle turned (``slip``); no noise when
+    ``rng`` is None. The first row is zero.
+
+    Parameters
+    ----------
+    poses : array_like, shape (k, 3) or (k, 4)
+        ``[x, y, yaw]`` or ``[x, y, z, yaw]`` of consecutive acquisitions (m, rad).
+
+    Returns
+    -------
+    ndarray, float64, shape (k, 3)
+    """
+    p = np.asarray(poses, float)
+    xy, yaw = p[:, :2], p[:, -1]
+    d = np.diff(xy, axis=0)
+    c, s = np.cos(yaw[:-1]), np.sin(yaw[:-1])
+    dyaw = (np.diff(yaw) + np.pi) % (2 * np.pi) - np.pi
+    inc = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], dyaw])
+    if rng is not None and inc.size:
+        sl = slip or OdometrySlip()
+        dist = np.hypot(inc[:, 0], inc[:, 1])
+        s_tr = sl.translation * dist + sl.floor[0]
+        s_rot = sl.rotation * np.abs(dyaw) + sl.heading_per_metre * dist + sl.floor[1]
+        inc = inc + rng.normal(size=inc.shape) * np.column_stack([s_tr, s_tr, s_rot])
+    return np.vstack([np.zeros((1, 3)), inc])
+
+
 def robot_node_info(scenario: Scenario, radar: RadarInfo, pose: tuple[float, ...]) -> NodeInfo:
     """The robot's ``node_info``: antennas in the node frame (x forward, y left, z up)."""
     rb = scenario.robot
@@ -174,11 +230,14 @@ def write_robot_recording(
     max_delay: float = DEFAULT_MAX_DELAY,
     net: str = "demo",
     progress: Callable[[int], None] | None = None,
+    slip: OdometrySlip | None = None,
 ) -> int:
     """Write ``dataset`` (every stop and heading of ``scenario``'s robot) as a recording.
 
     Acquisition ``i`` (stop-major, then heading) is at ``t = i / radar.rate``; ``frame`` is
-    ``i`` and ``slot`` 0. ``progress`` is called with the number of acquisitions written.
+    ``i`` and ``slot`` 0. Every ``ir`` carries ``odom``, the wheel odometry since the previous
+    acquisition with ``slip`` noise (:func:`odometry_increments`, drawn from
+    ``default_rng([seed, 1])``). ``progress`` is called with the number of acquisitions written.
     Returns the number of messages written; ``out`` appears only when complete.
     """
     rb = scenario.robot
@@ -195,6 +254,8 @@ def write_robot_recording(
     poses = [
         [(float(x), float(y), 0.0, float(h)) for h in dataset.headings] for x, y in dataset.stops
     ]
+    flat = [q for stop in poses for q in stop]
+    odom = odometry_increments(flat, np.random.default_rng([seed, 1]), slip)
     ir_key = keys.node_key(net, rb.id, "ir")
     truth_key = keys.truth_key(net)
     with RecordingWriter(out) as rec:
@@ -217,6 +278,7 @@ def write_robot_recording(
                     frame=i,
                     h=h[j],
                     pose=pose,
+                    odom=(float(odom[i, 0]), float(odom[i, 1]), float(odom[i, 2])),
                 )
                 rec.write_message(ir_key, ir)
                 rec.write_message(

@@ -103,6 +103,13 @@ def bench_topology(seed: int = 0) -> dict[str, Any]:
     return {"bench": "topology", **run(seed=seed), **_machine()}
 
 
+def bench_slam(seed: int = 0) -> dict[str, Any]:
+    """Robot acquisitions per second through the UWB SLAM (``uwbnet.bench_slam``)."""
+    from uwbnet.bench_slam import run
+
+    return {"bench": "slam", **run(seed=seed), **_machine()}
+
+
 def bench_fuzz(seed: int = 0) -> dict[str, Any]:
     """Fuzz the protocol decoder and the serial frame parser with atheris (``uwbnet.fuzz``),
     ``UWBNET_FUZZ_RUNS`` inputs each (default 500000): inputs run, crashes, hangs."""
@@ -220,6 +227,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "sim": bench_sim,
     "web": bench_web,
     "topology": bench_topology,
+    "slam": bench_slam,
 }
 
 __all__ = ["BENCHES"]

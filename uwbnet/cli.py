@@ -295,6 +295,19 @@ def cmd_stationary(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_map(args: argparse.Namespace) -> int:
+    from functools import partial
+
+    from uwbnet.map_cmd import map_recording
+
+    scenario = _load_scenario(args.eval) if args.eval else None
+    png = str(_out_path(args.png)) if args.png else None
+    run = partial(
+        map_recording, particles=args.particles, robot=args.robot, png=png, scenario=scenario
+    )
+    return _run_offline(args, "mapping", run)
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from fusion_center.offline import evaluate_files
 
@@ -560,6 +573,7 @@ BENCH_NAMES = (
     "imaging",
     "localization",
     "sim",
+    "slam",
     "topology",
     "web",
 )
@@ -694,6 +708,21 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--seed", type=int, default=0)
     st.add_argument("--json", action="store_true", help="print only the JSON line")
     st.set_defaults(func=cmd_stationary)
+    mp = sub.add_parser("map", help="UWB SLAM of a robot recording: walls, corners, points, path")
+    mp.add_argument("recording", help="input MCAP recording (a robot's ir, optional ir.odom)")
+    mp.add_argument("--out", required=True, help="output map.json (first-pose frame)")
+    mp.add_argument("--png", help="also draw the map to this PNG")
+    mp.add_argument(
+        "--association",
+        dest="method",
+        choices=("measurement", "state"),
+        default="measurement",
+        help="data association (6.3): echo groups (measurement space) or per pair (state space)",
+    )
+    mp.add_argument("--particles", type=int, default=40, help="particles (40)")
+    mp.add_argument("--robot", help="robot node id (default: the first mobile node with ir)")
+    mp.add_argument("--eval", metavar="SCENARIO", help="score the map against this scenario")
+    mp.set_defaults(func=cmd_map)
 
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
@@ -758,7 +787,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
     b.add_argument("name", choices=BENCH_NAMES)
-    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim", "topology"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
@@ -821,6 +849,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from protocol import ProtocolError
     from sim_nodes.scene import ScenarioError
     from uwbnet.config import ConfigError
+    from uwbnet.map_cmd import MappingError
     from uwbnet.plot_cmd import PlotError
 
     return (
@@ -833,6 +862,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         LocalizationError,
         ImagingError,
         RangingError,
+        MappingError,
         DriverError,
         OSError,
     )

@@ -188,6 +188,9 @@ class FusionFile(_Model):
     web: WebModel | None = Field(default=None, description="serve the live web view")
     image_rate: float = Field(default=0.0, ge=0.0, description="live images per second, 0: off")
     image_method: Literal["kirchhoff", "xcorr"] = "kirchhoff"
+    mapping: bool = Field(
+        default=False, description="run the UWB SLAM of robots' ir (poses and map, docs/mapping.md)"
+    )
     zenoh: ZenohModel = Field(default_factory=lambda: ZenohModel(mode="router"))
 
 

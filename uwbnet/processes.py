@@ -279,6 +279,12 @@ def run_fusion(cfg: FusionFile, stop: threading.Event) -> int:
         stack.callback(fusion.stop)
         if cfg.web is not None:
             stack.callback(_start_web(fusion, cfg))
+        if cfg.mapping:
+            from fusion_center.mapping_service import MappingConfig, MappingService
+
+            mapping = MappingService(session, MappingConfig(net=cfg.net, service_id=cfg.service_id))
+            mapping.start()
+            stack.callback(mapping.stop)
         while not stop.wait(0.2):
             if jsonl is not None:
                 _write_tracks(f, inbox)

@@ -196,6 +196,14 @@ def messages() -> dict[str, dict[str, Any]]:
             "method": "kirchhoff",
             "img": array("<f4", [2, 3], [0.0, 0.5, 1.0, 0.25, 0.75, 0.125]),
         },
+        "map": header("map", "fusion", 7, 100.6)
+        | {
+            "robot": "robot",
+            "origin": [2.25, 0.75, 0.0, 0.0],
+            "walls": array("<f8", [2, 4], [0.0, 0.0, 9.0, 0.0, 9.0, 0.0, 9.0, 8.0]),
+            "corners": array("<f8", [1, 2], [9.0, 0.0]),
+            "points": array("<f8", [0, 2], []),
+        },
         "truth": header("truth", "sim", 12, 100.5)
         | {
             "targets": [

@@ -168,6 +168,8 @@ def test_channel_dataset_params_and_plot(tmp_path: Path) -> None:
 
 def test_bench_names_of_the_parser_are_the_registered_benchmarks() -> None:
     from uwbnet.bench import BENCHES
-    from uwbnet.cli import BENCH_NAMES
+    from uwbnet.cli import BENCH_NAMES, build_parser
 
     assert sorted(BENCH_NAMES) == sorted(BENCHES)
+    for name in BENCH_NAMES:
+        assert build_parser().parse_args(["bench", name]).name == name

@@ -20,6 +20,7 @@ from protocol import (
     Detections,
     Image,
     Ir,
+    Map,
     NodeInfo,
     PoseEstimate,
     Poses,
@@ -182,6 +183,15 @@ images = st.builds(
     method=names,
     img=finite_array("<f4", st.tuples(st.integers(0, 6), st.integers(0, 6))),
 )
+maps = st.builds(
+    Map,
+    **header(),
+    robot=ids,
+    origin=vec4,
+    walls=finite_array("<f8", st.tuples(st.integers(0, 4), st.just(4))),
+    corners=finite_array("<f8", st.tuples(st.integers(0, 4), st.just(2))),
+    points=finite_array("<f8", st.tuples(st.integers(0, 4), st.just(2))),
+)
 truths = st.builds(
     Truth,
     **header(),
@@ -200,6 +210,7 @@ STRATEGIES = {
     "tracks": tracks,
     "poses": poses,
     "image": images,
+    "map": maps,
     "truth": truths,
 }
 messages = st.one_of(*STRATEGIES.values())

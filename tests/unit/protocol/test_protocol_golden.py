@@ -33,7 +33,8 @@ HEADER = ["v", "kind", "src", "seq", "t"]
 #: Field order of each kind as PROTOCOL.md lists it (required, then optional).
 CONTRACT_ORDER = {
     "node_info": ["role", "pose", "mobile", "antennas", "radar"],
-    "ir": ["tx", "rx", "slot", "frame", "h", "pose"],
+    # ``odom``: optional, robot odometry (docs/mapping.md)
+    "ir": ["tx", "rx", "slot", "frame", "h", "pose", "odom"],
     # ``links``: optional, added for node-to-node ranging (docs/localization.md)
     "detections": ["tx", "frame", "ranges", "amplitudes", "positions", "cov", "links"],
     "status": ["uptime", "acquired", "published", "dropped", "late_slots", "decode_errors", "cpu"],
@@ -41,6 +42,7 @@ CONTRACT_ORDER = {
     "tracks": ["tracks", "n_estimate"],
     "poses": ["poses"],
     "image": ["x0", "y0", "dx", "dy", "method", "img"],
+    "map": ["robot", "origin", "walls", "corners", "points"],
     "truth": ["targets", "nodes"],
 }
 NESTED_ORDER = {

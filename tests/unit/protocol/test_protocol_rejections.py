@@ -124,6 +124,7 @@ REQUIRED: dict[str, list[tuple[Any, ...]]] = {
     ],
     "poses": [("poses",), *[("poses", "bat2", f) for f in ("pose", "cov", "los")]],
     "image": [(f,) for f in ("x0", "y0", "dx", "dy", "method", "img")],
+    "map": [(f,) for f in ("robot", "origin", "walls", "corners", "points")],
     "truth": [
         ("targets",),
         ("nodes",),

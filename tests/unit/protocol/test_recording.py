@@ -26,7 +26,7 @@ def golden(name: str) -> bytes:
 def topic_of(msg: protocol.Message) -> str:
     """Key expressions from the PROTOCOL.md table, written out (not via protocol.keys)."""
     node = {"node_info": "info", "ir": "ir", "detections": "det", "status": "status"}
-    fusion = {"tracks": "tracks", "poses": "poses", "image": "image"}
+    fusion = {"tracks": "tracks", "poses": "poses", "image": "image", "map": "map"}
     if msg.KIND in node:
         return f"uwbnet/{NET}/node/{msg.src}/{node[msg.KIND]}"
     if msg.KIND in fusion:

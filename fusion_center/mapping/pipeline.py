@@ -1,0 +1,215 @@
+"""From a robot's impulse responses to its map and pose: echoes -> pairs -> groups -> RBPF.
+
+:class:`EchoSlamMapper` is the pure core the offline command (``uwbnet map``) and the fusion
+center's runtime share: one call per ``ir`` acquisition, time as an argument, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from fusion_center.mapping.echoes import EnvelopePeakEchoExtractor, pair_echoes
+from fusion_center.mapping.features import SlamMap, build_map
+from fusion_center.mapping.grouping import KalmanEchoGrouper
+from fusion_center.mapping.rbpf import PoseEstimate2D, RbpfSlam, SlamConfig
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
+    """tx, rx1, rx2 positions (x, y in the robot frame, m) from a ``node_info.antennas`` map.
+
+    Parameters
+    ----------
+    antennas : mapping name -> antenna
+        Objects with ``pos`` ([x, y, z], node frame) and ``tx`` (bool), as in
+        :class:`protocol.messages.Antenna`.
+    rx : sequence of str
+        The receivers of the ``ir`` rows, in row order.
+
+    Raises
+    ------
+    ValueError
+        Not exactly one transmitter, or ``rx`` does not name two known receivers.
+    """
+    tx = [a for a in antennas.values() if a.tx]
+    if len(tx) != 1:
+        raise ValueError("needs exactly one transmitting antenna")
+    if len(rx) != 2 or any(r not in antennas for r in rx):
+        raise ValueError(f"ir needs two known receivers, got {list(rx)}")
+    pos = [tx[0].pos] + [antennas[r].pos for r in rx]
+    return np.array([[p[0], p[1]] for p in pos], float)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MapperConfig:
+    """Parameters of :class:`EchoSlamMapper` besides the filter's (SI units).
+
+    Attributes
+    ----------
+    min_range, max_range : float
+        Bistatic ranges searched for echoes, m (the direct coupling and the floor lie below
+        ``min_range``; far echoes are mostly higher-order multipath).
+    threshold : float
+        Echo threshold in noise sigmas.
+    dynamic_db : float
+        Echoes weaker than this below the strongest are ignored, dB.
+    max_echoes : int
+        Echoes kept per receiver and acquisition.
+    pair_gate : float
+        Largest ``|r1 - r2|`` of one landmark's pair, m.
+    background_alpha : float
+        Forgetting factor of the robot-frame background after the warm-up (0: fixed).
+    warmup : int
+        Acquisitions whose median is the robot-frame background.
+    confirm : int
+        Pairs an echo group needs before it reaches the filter (measurement space).
+    lag : int
+        Acquisitions the measurement-space association waits for a group to confirm.
+    drive_reset : float
+        Odometry translation, m, after which the echo tracks restart (the robot drove).
+    """
+
+    min_range: float = 1.2
+    max_range: float = 10.0
+    threshold: float = 8.0
+    dynamic_db: float = 12.0
+    max_echoes: int = 4
+    pair_gate: float = 0.6
+    background_alpha: float = 0.0
+    warmup: int = 24
+    confirm: int = 3
+    lag: int = 2
+    drive_reset: float = 0.1
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MapperOutput:
+    """The filter's state after one acquisition: time ``t`` (s) and the pose estimate in the
+    frame of the robot's first pose."""
+
+    t: float
+    estimate: PoseEstimate2D
+    pairs: int
+
+
+class EchoSlamMapper:
+    """UWB SLAM of a bat-type robot from its impulse responses (Section 6 of the CoLOR chapter).
+
+    Parameters
+    ----------
+    antennas : array_like, shape (3, 2)
+        tx, rx1, rx2 in the robot frame (x forward, y left), m.
+    fs, t0, bandwidth : float
+        Sampling of the impulse responses (``node_info.radar``): Hz, s, Hz.
+    config : MapperConfig
+    slam : SlamConfig
+    """
+
+    def __init__(
+        self,
+        antennas: npt.ArrayLike,
+        *,
+        fs: float,
+        t0: float,
+        bandwidth: float,
+        config: MapperConfig | None = None,
+        slam: SlamConfig | None = None,
+    ) -> None:
+        self.config = cfg = config or MapperConfig()
+        self.filter = RbpfSlam(antennas, slam)
+        self.measurement_space = self.filter.config.association == "measurement"
+        self.extractor = EnvelopePeakEchoExtractor(
+            fs=fs,
+            t0=t0,
+            bandwidth=bandwidth,
+            min_range=cfg.min_range,
+            max_range=cfg.max_range,
+            threshold=cfg.threshold,
+            dynamic_db=cfg.dynamic_db,
+            max_echoes=cfg.max_echoes,
+            alpha=cfg.background_alpha,
+            warmup=cfg.warmup,
+        )
+        self.grouper = KalmanEchoGrouper()
+        # acquisitions waiting for the extractor's warm-up: (t, odometry)
+        self._meta: deque[tuple[float, FloatArray | None]] = deque()
+        # acquisitions waiting for their groups to confirm: (t, odometry, pairs, ids)
+        self._queue: deque[tuple[float, FloatArray | None, FloatArray, npt.NDArray]] = deque()
+        self._last_t: float | None = None
+        self.pairs_used = 0
+        self.pairs_seen = 0
+
+    def step(
+        self, t: float, h: npt.NDArray, odometry: npt.ArrayLike | None = None
+    ) -> list[MapperOutput]:
+        """Add one acquisition; return the outputs of the acquisitions now processed.
+
+        Parameters
+        ----------
+        t : float
+            Acquisition time, s.
+        h : ndarray, float32 or complex64, shape (2, n)
+            Impulse responses at rx1 and rx2.
+        odometry : array_like, shape (3,), optional
+            ``(dx, dy, dyaw)`` since the previous acquisition (PROTOCOL ``ir.odom``).
+        """
+        odo = None if odometry is None else np.asarray(odometry, float)
+        self._meta.append((t, odo))
+        out: list[MapperOutput] = []
+        for echoes in self.extractor.push(h):
+            out += self._pairs(pair_echoes(echoes, self.config.pair_gate))
+        return out
+
+    def finish(self) -> list[MapperOutput]:
+        """Process everything still held back (end of the stream)."""
+        out: list[MapperOutput] = []
+        for echoes in self.extractor.flush():
+            out += self._pairs(pair_echoes(echoes, self.config.pair_gate))
+        while self._queue:
+            out.append(self._filter(*self._queue.popleft()))
+        return out
+
+    def _pairs(self, z: FloatArray) -> list[MapperOutput]:
+        t, odo = self._meta.popleft()
+        self.pairs_seen += z.shape[0]
+        if odo is not None and np.hypot(odo[0], odo[1]) > self.config.drive_reset:
+            self.grouper.reset()
+        ids = self.grouper.step(z)
+        if not self.measurement_space:
+            return [self._filter(t, odo, z, ids)]
+        self._queue.append((t, odo, z, ids))
+        out = []
+        while len(self._queue) > self.config.lag:
+            out.append(self._filter(*self._queue.popleft()))
+        return out
+
+    def _filter(
+        self, t: float, odo: FloatArray | None, z: FloatArray, ids: npt.NDArray
+    ) -> MapperOutput:
+        f = self.filter
+        if self._last_t is not None:
+            f.predict(t - self._last_t, odo)
+        self._last_t = t
+        if self.measurement_space:
+            hits = self.grouper.hits
+            keep = np.array([hits.get(int(g), 0) >= self.config.confirm for g in ids], bool)
+            z, ids = z[keep], ids[keep]
+        f.update(z, ids)
+        self.pairs_used += z.shape[0]
+        if self.measurement_space:
+            live = {int(g) for q in self._queue for g in q[3]} | set(ids.tolist())
+            f.forget_groups(live)
+            self.grouper.hits = {g: n for g, n in self.grouper.hits.items() if g in live}
+        return MapperOutput(t=t, estimate=f.estimate(), pairs=int(z.shape[0]))
+
+    def map(self, min_hits: int = 8) -> SlamMap:
+        """The current map of the best particle (:func:`~fusion_center.mapping.features.build_map`
+        of :meth:`RbpfSlam.landmarks`)."""
+        return build_map(self.filter.landmarks(min_hits=min_hits))

@@ -1,0 +1,609 @@
+"""Rao-Blackwellized particle filter SLAM for a bat-type robot (Section 6 of the CoLOR chapter).
+
+The joint posterior of the robot path and the map factorises (FastSLAM, eq. (13)-(14) of the
+CoLOR chapter): particles carry the robot state and the sensor parameters, and each particle
+carries one small EKF per landmark, conditioned on its path:
+
+.. math::
+    p(x_{0:k}, m \\mid z_{1:k}, u_{1:k}) = p(x_{0:k} \\mid z_{1:k}, u_{1:k})
+    \\prod_l p(m_l \\mid x_{0:k}, z_{1:k})
+
+State of a particle (eq. (7)-(10)): robot ``[px, py, heading, speed]`` (m, rad, m/s), the
+sensor's range bias ``b`` (m, common to both receivers: cable and pulse-shape delay) and the
+array orientation ``delta`` (rad, mounting yaw of the array relative to the driving
+direction). ``b`` and ``delta`` are drawn once per particle and selected by resampling.
+
+Landmarks: each landmark keeps the three hypotheses of :mod:`fusion_center.mapping.models`
+(wall, corner, point) side by side, each a 2-D Gaussian, with the accumulated log-likelihood
+of the echoes under each hypothesis. A wall and a corner predict the same echoes from one
+position and a point differs by second-order terms while the robot only turns; as the robot
+drives between stops the likelihoods separate (landmark initialisation and classification from
+several views). The association likelihood is the mixture over the hypotheses.
+
+Data association, per pair of echo ranges ``z = (r1, r2)``:
+
+* **state space** (``association="state"``): per particle, the association ``c`` is sampled
+  from the importance distribution of eq. (12) of the CoLOR chapter (Rao-Blackwellized Monte
+  Carlo data association),
+
+  .. math:: q(c = l) \\propto p(z \\mid c = l, x, m_l)\\, p(c = l), \\qquad
+            q(c = \\text{new}) \\propto \\lambda_\\text{new},
+
+  and the particle weight is multiplied by the normaliser :math:`\\sum_c p(z, c)`;
+* **measurement space** (``association="measurement"``): pairs arrive with the group id of
+  their echo track (:class:`~fusion_center.mapping.grouping.KalmanEchoGrouper`); a group's
+  association is sampled as above once per particle and kept for the whole group.
+
+Motion (:meth:`RbpfSlam.predict`): odometry increments ``(dx, dy, dyaw)`` in the previous robot
+frame with slip noise proportional to the motion, or, without odometry, the constant-speed
+model of eq. (7) with a heading random walk. Resampling is systematic when the effective
+sample size falls below half the particles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from fusion_center.mapping.features import LandmarkSet
+from fusion_center.mapping.models import (
+    CORNER,
+    POINT,
+    WALL,
+    invert_image,
+    invert_point,
+    predict,
+    states_from_image,
+    wall_tangent,
+)
+
+FloatArray = npt.NDArray[np.float64]
+_LOG2PI = np.log(2 * np.pi)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SlamConfig:
+    """Parameters of :class:`RbpfSlam` (SI units).
+
+    Attributes
+    ----------
+    n_particles : int
+        Particles.
+    association : str
+        ``"state"`` (eq. (12) per pair) or ``"measurement"`` (whole echo groups).
+    range_sigma : float
+        Standard deviation of one bistatic range in the filter, m (inflated over the echo
+        extractor's centimetre to cover model errors and the particles' spacing).
+    new_log_density : float
+        ``ln lambda_new``, density of a new landmark in the 2-D measurement space (1/m^2).
+    kind_prior : tuple of float
+        Prior probabilities of wall, corner, point.
+    fov : float
+        Half-angle around the array boresight within which landmarks can echo, rad.
+    slip_translation, slip_rotation : float
+        Odometry noise: standard deviation per metre driven (m/m) and per radian turned
+        (rad/rad).
+    slip_floor : tuple of float
+        Noise per step even without motion: (m, rad).
+    slip_heading_per_metre : float
+        Heading noise per metre driven, rad/m (wheel slip while driving).
+    no_odometry_turn_sigma : float
+        Heading random walk per acquisition when the robot reports no odometry, rad.
+    bias_sigma, mount_sigma : float
+        Spread of the initial range bias (m) and array orientation (rad) over the particles.
+    min_hits : int
+        Pairs a landmark needs within ``tentative_window`` acquisitions to be kept.
+    tentative_window : int
+        Acquisitions a new landmark has to collect ``min_hits``.
+    capacity : int
+        Initial landmark slots per particle (grows as needed).
+    expand_distance : float
+        Odometry translation, m, after which the particle set is expanded (the robot drove to
+        a new stop: the pose spreads most there).
+    expand_factor : int
+        Copies of every particle drawn through the motion model at such a step.
+    expand_steps : int
+        Acquisitions after which the expanded set is resampled back to ``n_particles``.
+    seed : int
+        Seed of the filter's random generator.
+    """
+
+    n_particles: int = 40
+    association: str = "measurement"
+    range_sigma: float = 0.05
+    new_log_density: float = -6.0
+    kind_prior: tuple[float, float, float] = (0.5, 0.2, 0.3)
+    fov: float = np.radians(60.0)
+    slip_translation: float = 0.05
+    slip_rotation: float = 0.10
+    slip_floor: tuple[float, float] = (0.005, np.radians(0.2))
+    slip_heading_per_metre: float = np.radians(2.0)
+    no_odometry_turn_sigma: float = np.radians(3.0)
+    bias_sigma: float = 0.01
+    mount_sigma: float = np.radians(1.0)
+    min_hits: int = 4
+    tentative_window: int = 15
+    capacity: int = 64
+    expand_distance: float = 0.1
+    expand_factor: int = 8
+    expand_steps: int = 10
+    seed: int = 0
+
+
+@dataclass(slots=True)
+class _Landmarks:
+    """Per-particle landmark arrays, shape (P, L, ...)."""
+
+    mean: FloatArray  # (P, L, 3, 2)
+    cov: FloatArray  # (P, L, 3, 2, 2)
+    loglik: FloatArray  # (P, L, 3) accumulated, prior included
+    active: npt.NDArray[np.bool_]  # (P, L)
+    hits: npt.NDArray[np.int64]  # (P, L)
+    born: npt.NDArray[np.int64]  # (P, L)
+    origin: FloatArray  # (P, L, 2) robot position at the first echo
+    spread: FloatArray  # (P, L) largest distance from origin of a viewing position
+    t_min: FloatArray  # (P, L) wall extent along the tangent, m
+    t_max: FloatArray  # (P, L)
+
+    @classmethod
+    def empty(cls, p: int, cap: int) -> _Landmarks:
+        return cls(
+            mean=np.zeros((p, cap, 3, 2)),
+            cov=np.tile(np.eye(2), (p, cap, 3, 1, 1)),
+            loglik=np.zeros((p, cap, 3)),
+            active=np.zeros((p, cap), bool),
+            hits=np.zeros((p, cap), np.int64),
+            born=np.zeros((p, cap), np.int64),
+            origin=np.zeros((p, cap, 2)),
+            spread=np.zeros((p, cap)),
+            t_min=np.zeros((p, cap)),
+            t_max=np.zeros((p, cap)),
+        )
+
+    def fields(self) -> tuple[str, ...]:
+        return self.__slots__  # type: ignore[return-value]
+
+    def take(self, idx: npt.NDArray[np.intp]) -> None:
+        for name in self.fields():
+            setattr(self, name, getattr(self, name)[idx])
+
+    def grow(self, extra: int) -> None:
+        fresh = _Landmarks.empty(self.active.shape[0], extra)
+        for name in self.fields():
+            setattr(self, name, np.concatenate([getattr(self, name), getattr(fresh, name)], 1))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PoseEstimate2D:
+    """Weighted mean of the particles: ``pose`` [x, y, yaw] (m, rad) and its 3x3 covariance."""
+
+    pose: FloatArray
+    cov: FloatArray
+
+
+def _inv2(s: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Inverse and determinant of 2x2 matrices (..., 2, 2)."""
+    a, b, c, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 0], s[..., 1, 1]
+    det = a * d - b * c
+    inv = np.stack([np.stack([d, -b], -1), np.stack([-c, a], -1)], -2) / det[..., None, None]
+    return inv, det
+
+
+def _logsumexp(x: FloatArray, axis: int) -> FloatArray:
+    m = np.max(x, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.squeeze(m, axis) + np.log(np.sum(np.exp(x - m), axis=axis))
+
+
+class RbpfSlam:
+    """FastSLAM-style Rao-Blackwellized particle filter with per-landmark EKFs.
+
+    Parameters
+    ----------
+    antennas : ndarray, shape (3, 2)
+        Positions of tx, rx1, rx2 in the robot frame (x forward, y left), m.
+    config : SlamConfig
+    """
+
+    def __init__(self, antennas: npt.ArrayLike, config: SlamConfig | None = None) -> None:
+        self.config = cfg = config or SlamConfig()
+        if cfg.association not in ("state", "measurement"):
+            raise ValueError(
+                f"association must be 'state' or 'measurement', not {cfg.association!r}"
+            )
+        ant = np.asarray(antennas, float)
+        if ant.shape != (3, 2):
+            raise ValueError("antennas must be tx, rx1, rx2 positions, shape (3, 2)")
+        self.antennas = ant
+        # array frame: transmitter at the origin (the inverse models expect it)
+        self._rx_body = ant[1:] - ant[0]
+        self.rng = np.random.default_rng(cfg.seed)
+        p = cfg.n_particles
+        self.pose = np.zeros((p, 3))
+        self.speed = np.zeros(p)
+        self.bias = self.rng.normal(0.0, cfg.bias_sigma, p)
+        self.mount = self.rng.normal(0.0, cfg.mount_sigma, p)
+        self.logw = np.zeros(p)
+        self.lm = _Landmarks.empty(p, cfg.capacity)
+        self._log_prior = np.log(np.asarray(cfg.kind_prior, float))
+        self._groups: dict[int, npt.NDArray[np.intp]] = {}
+        self._shrink_at: int | None = None
+        self.k = 0
+        self.resamples = 0
+
+    # --- geometry -----------------------------------------------------------------------------
+
+    def _array_world(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """World tx (P, 2), rx (P, 2, 2) and boresight yaw (P,) of every particle."""
+        yaw = self.pose[:, 2] + self.mount
+        c, s = np.cos(yaw), np.sin(yaw)
+        rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (P, 2, 2)
+        ant = np.einsum("pij,aj->pai", rot, self.antennas) + self.pose[:, None, :2]
+        return ant[:, 0], ant[:, 1:], yaw
+
+    # --- motion -------------------------------------------------------------------------------
+
+    def predict(self, dt: float, odometry: npt.ArrayLike | None = None) -> None:
+        """Move every particle (eq. (7)-(8) of the CoLOR chapter) with slip noise.
+
+        Parameters
+        ----------
+        dt : float
+            Time since the previous acquisition, s.
+        odometry : array_like, shape (3,), optional
+            ``(dx, dy, dyaw)`` since the previous acquisition in the previous robot frame
+            (m, m, rad). Without it the robot keeps its estimated speed and heading with a
+            heading random walk.
+        """
+        cfg = self.config
+        p = self.pose.shape[0]
+        if (
+            odometry is not None
+            and np.hypot(*np.asarray(odometry, float)[:2]) > cfg.expand_distance
+            and cfg.expand_factor > 1
+        ):
+            self._expand(cfg.expand_factor)
+            p = self.pose.shape[0]
+        if odometry is None:
+            dist = self.speed * dt
+            dyaw = np.zeros(p)
+            step = np.stack([dist, np.zeros(p)], -1)
+            s_rot = np.full(p, cfg.no_odometry_turn_sigma)
+            s_tr = cfg.slip_translation * np.abs(dist) + cfg.slip_floor[0]
+        else:
+            odo = np.asarray(odometry, float)
+            dist = np.full(p, np.hypot(odo[0], odo[1]))
+            dyaw = np.full(p, odo[2])
+            step = np.broadcast_to(odo[:2], (p, 2))
+            s_tr = cfg.slip_translation * dist + cfg.slip_floor[0]
+            s_rot = (
+                cfg.slip_rotation * np.abs(dyaw)
+                + cfg.slip_heading_per_metre * dist
+                + cfg.slip_floor[1]
+            )
+            if dt > 0:
+                self.speed = dist / dt
+        noisy = step + self.rng.normal(size=(p, 2)) * s_tr[:, None]
+        c, s = np.cos(self.pose[:, 2]), np.sin(self.pose[:, 2])
+        self.pose[:, 0] += c * noisy[:, 0] - s * noisy[:, 1]
+        self.pose[:, 1] += s * noisy[:, 0] + c * noisy[:, 1]
+        self.pose[:, 2] = self.pose[:, 2] + dyaw + self.rng.normal(size=p) * s_rot
+
+    def _expand(self, factor: int) -> None:
+        """Copy every particle ``factor`` times before a large motion; the copies are drawn
+        separately through the motion model, so the proposal covers the spread of a drive
+        (a sampled stand-in for FastSLAM 2.0's measurement-informed proposal). Resampled back
+        to ``n_particles`` after ``expand_steps`` acquisitions."""
+        if self._shrink_at is None:
+            idx = np.repeat(np.arange(self.pose.shape[0]), factor)
+            self._take(idx)
+            self.logw = self.logw - np.log(factor)
+        self._shrink_at = self.k + self.config.expand_steps
+
+    def _take(self, idx: npt.NDArray[np.intp]) -> None:
+        self.pose = self.pose[idx]
+        self.speed = self.speed[idx]
+        self.bias = self.bias[idx]
+        self.mount = self.mount[idx]
+        self.logw = self.logw[idx]
+        self.lm.take(idx)
+        self._groups = {g: c[idx] for g, c in self._groups.items()}
+
+    # --- measurement --------------------------------------------------------------------------
+
+    def _predict_all(
+        self, idx: npt.NDArray[np.intp] | None, tx: FloatArray, rx: FloatArray, yaw: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+        """Predicted ranges (P, L, 3, 2), Jacobians (P, L, 3, 2, 2), innovation covariances
+        and visibility (P, L) of all landmarks (``idx`` None) or one per particle (L = 1)."""
+        if idx is None:
+            mean, cov, active = self.lm.mean, self.lm.cov, self.lm.active
+        else:
+            rows = np.arange(self.pose.shape[0])[:, None]
+            mean = self.lm.mean[rows, idx[:, None]]
+            cov = self.lm.cov[rows, idx[:, None]]
+            active = self.lm.active[rows, idx[:, None]]
+        txb = tx[:, None, :]
+        rxb = rx[:, None, :, :]
+        preds, jacs, vis = [], [], []
+        boresight = np.stack([np.cos(yaw), np.sin(yaw)], -1)[:, None, :]
+        cos_fov = np.cos(self.config.fov)
+        for kind in (WALL, CORNER, POINT):
+            r, j, direction = predict(kind, mean[:, :, kind], txb, rxb)
+            preds.append(r + self.bias[:, None, None])
+            jacs.append(j)
+            v = np.sum(direction * boresight, -1) >= cos_fov
+            if kind == WALL:
+                a = mean[:, :, kind, 0]
+                n = np.stack([np.cos(a), np.sin(a)], -1)
+                v &= mean[:, :, kind, 1] - np.sum(n * txb, -1) > 0.05
+            vis.append(v)
+        pred = np.stack(preds, 2)
+        jac = np.stack(jacs, 2)
+        r_cov = self.config.range_sigma**2 * np.eye(2)
+        s = jac @ cov @ np.swapaxes(jac, -1, -2) + r_cov
+        visible = active & np.any(np.stack(vis, -1), -1)
+        return pred, jac, s, visible
+
+    def _kind_loglik(self, z: FloatArray, pred: FloatArray, s: FloatArray) -> FloatArray:
+        """``ln N(z; pred, S)`` per hypothesis, shape (P, L, 3)."""
+        inv, det = _inv2(s)
+        nu = z - pred
+        d2 = np.einsum("...i,...ij,...j->...", nu, inv, nu)
+        return -0.5 * d2 - 0.5 * np.log(np.maximum(det, 1e-300)) - _LOG2PI
+
+    def _mixture(self, kind_ll: FloatArray, rows: npt.NDArray[np.intp] | None = None) -> FloatArray:
+        """Association log-likelihood: mixture over the hypotheses with their posteriors."""
+        acc = self.lm.loglik if rows is None else rows
+        logpi = acc - _logsumexp(acc, -1)[..., None]
+        return _logsumexp(logpi + kind_ll, -1)
+
+    def update(self, z: npt.ArrayLike, groups: npt.ArrayLike | None = None) -> None:
+        """Process the pairs of one acquisition (after :meth:`predict`).
+
+        Parameters
+        ----------
+        z : array_like, shape (m, 2)
+            Pairs of bistatic ranges ``(r1, r2)``, m.
+        groups : array_like of int, shape (m,), optional
+            Echo-group ids (measurement-space association); ignored in state-space mode.
+        """
+        z = np.atleast_2d(np.asarray(z, float)).reshape(-1, 2)
+        use_groups = self.config.association == "measurement" and groups is not None
+        gids = np.asarray(groups, np.int64) if use_groups else None
+        tx, rx, yaw = self._array_world()
+        # Inverse models in the array frame, once per pair (the same for every particle; the
+        # per-particle bias is small against the 2-sigma initial covariance).
+        image_body = invert_image(z, self._rx_body)
+        point_body = invert_point(z, self._rx_body)
+        for m in range(z.shape[0]):
+            if not np.all(np.isfinite(image_body[m])):
+                continue
+            g = int(gids[m]) if gids is not None else None
+            self._update_one(z[m], image_body[m], point_body[m], tx, rx, yaw, g)
+        self._prune()
+        if self._shrink_at is not None and self.k >= self._shrink_at:
+            self._shrink_at = None
+            self._resample(self.config.n_particles)
+        else:
+            self._maybe_resample()
+        self.k += 1
+
+    def _update_one(
+        self,
+        z: FloatArray,
+        image_body: FloatArray,
+        point_body: FloatArray,
+        tx: FloatArray,
+        rx: FloatArray,
+        yaw: FloatArray,
+        group: int | None,
+    ) -> None:
+        cfg = self.config
+        p, cap = self.lm.active.shape
+        rows = np.arange(p)
+        known = self._groups.get(group) if group is not None else None
+        if known is not None:
+            known_ok = self.lm.active[rows, np.minimum(known, cap - 1)] & (known < cap)
+        else:
+            known_ok = np.zeros(p, bool)
+        if np.all(known_ok):
+            # measurement space: the group's landmark, no sampling
+            choice = known
+            pred, jac, s, _ = self._predict_all(choice, tx, rx, yaw)
+            kind_ll = self._kind_loglik(z, pred, s)  # (P, 1, 3)
+            acc = self.lm.loglik[rows, choice][:, None]
+            ll = self._mixture(kind_ll, acc)[:, 0]
+            self.logw += np.maximum(ll, cfg.new_log_density - 10.0)
+            self._apply(choice, z, pred[:, 0], jac[:, 0], s[:, 0], kind_ll[:, 0], tx)
+            return
+        pred, jac, s, vis = self._predict_all(None, tx, rx, yaw)
+        kind_ll = self._kind_loglik(z, pred, s)  # (P, L, 3)
+        ll = np.where(vis, self._mixture(kind_ll), -np.inf)
+        options = np.concatenate([ll, np.full((p, 1), cfg.new_log_density)], 1)
+        # eq. (12): sample the association from its posterior (Gumbel-max per particle)
+        norm = _logsumexp(options, 1)
+        choice = np.argmax(options + self.rng.gumbel(size=options.shape), 1)
+        if known is not None:
+            choice = np.where(known_ok, known, choice)
+        self.logw += norm
+        new = choice == cap
+        if np.any(new):
+            slots = self._free_slots(new)
+            choice = np.where(new, slots, choice)
+            cap = self.lm.active.shape[1]
+            self._initialise(rows[new], slots[new], image_body, point_body, tx, yaw, z)
+        old = ~new
+        if np.any(old):
+            sel = rows[old]
+            c = choice[old]
+            self._apply_rows(
+                sel, c, z, pred[sel, c], jac[sel, c], s[sel, c], kind_ll[sel, c], tx[sel]
+            )
+        if group is not None:
+            self._groups[group] = choice
+
+    def _free_slots(self, need: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
+        """First inactive slot of every particle (grows the arrays when one is full)."""
+        full = self.lm.active.all(1)
+        if np.any(full & need):
+            self.lm.grow(self.lm.active.shape[1])
+        return np.argmin(self.lm.active, 1)
+
+    def _initialise(
+        self,
+        sel: npt.NDArray[np.intp],
+        slot: npt.NDArray[np.intp],
+        image_body: FloatArray,
+        point_body: FloatArray,
+        tx: FloatArray,
+        yaw: FloatArray,
+        z: FloatArray,
+    ) -> None:
+        """New landmarks from one pair: the three hypotheses from the inverse models."""
+        c, s = np.cos(yaw[sel]), np.sin(yaw[sel])
+        rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+        t = tx[sel]
+        image = t + rot @ image_body
+        mean = np.zeros((sel.size, 3, 2))
+        mean[:, WALL] = states_from_image(WALL, image, t)
+        mean[:, CORNER] = states_from_image(CORNER, image, t)
+        point_ok = np.all(np.isfinite(point_body))
+        mean[:, POINT] = t + rot @ (point_body if point_ok else 0.5 * image_body)
+        lm = self.lm
+        lm.mean[sel, slot] = mean
+        # covariance through the inverse of the measurement Jacobian, inflated for the pose
+        _, rx, _ = self._array_world()
+        r_cov = (2.0 * self.config.range_sigma) ** 2 * np.eye(2)
+        for kind in (WALL, CORNER, POINT):
+            _, jac, _ = predict(kind, mean[:, kind], t, rx[sel])
+            ginv = np.linalg.pinv(jac)
+            lm.cov[sel, slot, kind] = ginv @ r_cov @ np.swapaxes(ginv, -1, -2) + 1e-4 * np.eye(2)
+        lm.loglik[sel, slot] = self._log_prior
+        if not point_ok:
+            lm.loglik[sel, slot, POINT] = -50.0
+        lm.active[sel, slot] = True
+        lm.hits[sel, slot] = 1
+        lm.born[sel, slot] = self.k
+        lm.origin[sel, slot] = self.pose[sel, :2]
+        lm.spread[sel, slot] = 0.0
+        foot = 0.5 * (image + t)
+        tw = wall_tangent(mean[:, WALL], foot)
+        lm.t_min[sel, slot] = tw
+        lm.t_max[sel, slot] = tw
+
+    def _apply(self, choice, z, pred, jac, s, kind_ll, tx) -> None:
+        rows = np.arange(self.pose.shape[0])
+        self._apply_rows(rows, choice, z, pred, jac, s, kind_ll, tx)
+
+    def _apply_rows(
+        self,
+        rows: npt.NDArray[np.intp],
+        idx: npt.NDArray[np.intp],
+        z: FloatArray,
+        pred: FloatArray,
+        jac: FloatArray,
+        s: FloatArray,
+        kind_ll: FloatArray,
+        tx: FloatArray,
+    ) -> None:
+        """EKF update of landmark ``idx`` of particles ``rows`` under all three hypotheses."""
+        lm = self.lm
+        cov = lm.cov[rows, idx]  # (n, 3, 2, 2)
+        inv, _ = _inv2(s)
+        gain = cov @ np.swapaxes(jac, -1, -2) @ inv
+        nu = z - pred
+        mean = lm.mean[rows, idx] + np.einsum("nkij,nkj->nki", gain, nu)
+        cov = (np.eye(2) - gain @ jac) @ cov
+        lm.mean[rows, idx] = mean
+        lm.cov[rows, idx] = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+        lm.loglik[rows, idx] += np.maximum(kind_ll, -50.0)
+        lm.hits[rows, idx] += 1
+        pos = self.pose[rows, :2]
+        lm.spread[rows, idx] = np.maximum(
+            lm.spread[rows, idx], np.linalg.norm(pos - lm.origin[rows, idx], axis=-1)
+        )
+        # wall extent: the specular point is the foot of the perpendicular from tx
+        w = mean[:, WALL]
+        a = w[:, 0]
+        n = np.stack([np.cos(a), np.sin(a)], -1)
+        t = tx if tx.shape[0] == rows.size else tx[rows]
+        foot = t + (w[:, 1] - np.sum(n * t, -1))[:, None] * n
+        tw = wall_tangent(w, foot)
+        lm.t_min[rows, idx] = np.minimum(lm.t_min[rows, idx], tw)
+        lm.t_max[rows, idx] = np.maximum(lm.t_max[rows, idx], tw)
+
+    # --- bookkeeping --------------------------------------------------------------------------
+
+    def _prune(self) -> None:
+        """Drop tentative landmarks that did not collect ``min_hits`` echoes in time."""
+        cfg = self.config
+        lm = self.lm
+        stale = lm.active & (lm.hits < cfg.min_hits) & (self.k - lm.born > cfg.tentative_window)
+        lm.active &= ~stale
+
+    def _maybe_resample(self) -> None:
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
+        ess = 1.0 / np.sum(w * w)
+        self.logw = np.log(np.maximum(w, 1e-300))
+        if ess < 0.5 * w.size:
+            self._resample(w.size)
+
+    def _resample(self, n: int) -> None:
+        """Systematic resampling to ``n`` particles."""
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
+        pos = (self.rng.random() + np.arange(n)) / n
+        idx = np.minimum(np.searchsorted(np.cumsum(w), pos), w.size - 1)
+        self._take(idx)
+        self.logw = np.full(n, -np.log(n))
+        self.resamples += 1
+
+    def forget_groups(self, keep: set[int]) -> None:
+        """Drop the associations of echo groups that ended (all but ``keep``)."""
+        self._groups = {g: c for g, c in self._groups.items() if g in keep}
+
+    # --- outputs ------------------------------------------------------------------------------
+
+    def estimate(self) -> PoseEstimate2D:
+        """Weighted mean pose [x, y, yaw] and covariance over x, y, yaw."""
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
+        xy = w @ self.pose[:, :2]
+        yaw = np.arctan2(w @ np.sin(self.pose[:, 2]), w @ np.cos(self.pose[:, 2]))
+        d = self.pose - np.array([xy[0], xy[1], yaw])
+        d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        cov = (w[:, None] * d).T @ d
+        return PoseEstimate2D(pose=np.array([xy[0], xy[1], yaw]), cov=cov)
+
+    def landmarks(self, min_hits: int = 8, min_spread: float = 0.0) -> LandmarkSet:
+        """Confirmed landmarks of the heaviest particle, each as its likeliest kind.
+
+        Parameters
+        ----------
+        min_hits : int
+            Echoes a landmark needs to be reported.
+        min_spread : float
+            Distance, m, over which the robot must have seen it (several views).
+        """
+        b = int(np.argmax(self.logw))
+        lm = self.lm
+        ok = lm.active[b] & (lm.hits[b] >= min_hits) & (lm.spread[b] >= min_spread)
+        ll = lm.loglik[b]
+        is_wall = ll[:, WALL] >= np.maximum(ll[:, CORNER], ll[:, POINT])
+        wi = np.flatnonzero(ok & is_wall)
+        pi = np.flatnonzero(ok & ~is_wall)
+        corner = ll[pi, CORNER] >= ll[pi, POINT]
+        pos = np.where(corner[:, None], lm.mean[b, pi, CORNER], lm.mean[b, pi, POINT])
+        return LandmarkSet(
+            walls=lm.mean[b, wi, WALL],
+            wall_extent=np.column_stack([lm.t_min[b, wi], lm.t_max[b, wi]]),
+            wall_hits=lm.hits[b, wi].astype(float),
+            points=pos,
+            point_is_corner=corner,
+            point_hits=lm.hits[b, pi].astype(float),
+        )

@@ -1,0 +1,196 @@
+"""Score a SLAM map (map.json) against a scenario's geometry and the recorded true poses.
+
+Used by ``uwbnet map ... --eval SCENARIO``. Truth is taken from the scenario file (room outline,
+objects) and moved into the frame of the robot's first true pose, the frame of map.json.
+
+Figures (metres, degrees):
+
+* walls: a mapped wall matches a true face (room wall or object side) whose line is within
+  15 degrees and 0.5 m of it and which it overlaps; for every true face with a match, the
+  closest mapped wall gives ``position`` (distance of its midpoint from the true line) and
+  ``orientation`` (angle between them); ``unmatched`` counts mapped walls that match no face
+  (ghosts: multipath, back faces of thick walls beyond 0.5 m) and ``outline_coverage`` is the
+  fraction of the room outline's length covered by matched walls.
+* corners: concave corners of the truth (room corners, object sides meeting a room wall); for
+  each, the nearest mapped corner within 0.5 m.
+* points: convex edges of the objects (their vertical edges away from the room walls); for each
+  object, the nearest mapped point to its outline (``found`` within 15 cm).
+* trajectory: RMSE of the position and of the heading over all acquisitions.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Any
+
+import numpy as np
+
+
+def _to_frame(xy: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+    d = np.asarray(xy, float) - origin[:2]
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+
+
+def truth_geometry(scenario: Any) -> dict[str, Any]:
+    """Faces (segments), concave corners, convex edges and object outlines, world frame."""
+    outline = np.array(scenario.room.outline, float) if scenario.room else np.zeros((0, 2))
+    room_segs = [np.r_[a, b] for a, b in itertools.pairwise(outline)]
+
+    def on_room_wall(p: np.ndarray) -> bool:
+        for s in room_segs:
+            a, b = s[:2], s[2:]
+            e = b - a
+            t = np.clip(np.dot(p - a, e) / np.dot(e, e), 0, 1)
+            if np.linalg.norm(a + t * e - p) < 1e-6:
+                return True
+        return False
+
+    faces, corners, edges, objects = list(room_segs), list(outline[:-1]), [], []
+    for o in scenario.objects:
+        fp = np.array(o.footprint, float)
+        objects.append((o.id, fp))
+        for a, b in itertools.pairwise(fp):
+            mid = 0.5 * (a + b)
+            if not on_room_wall(mid):
+                faces.append(np.r_[a, b])
+        for v in fp[:-1]:
+            (corners if on_room_wall(v) else edges).append(v)
+    for w in scenario.walls:
+        faces.append(np.r_[w.start, w.end])
+    return {
+        "faces": np.array(faces).reshape(-1, 4),
+        "room": np.array(room_segs).reshape(-1, 4),
+        "corners": np.array(corners).reshape(-1, 2),
+        "edges": np.array(edges).reshape(-1, 2),
+        "objects": objects,
+    }
+
+
+def _seg_point_dist(seg: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Distance of points p (k, 2) from segments seg (w, 4): (k, w)."""
+    a, b = seg[:, :2], seg[:, 2:]
+    e = b - a
+    t = np.clip(np.einsum("kwi,wi->kw", p[:, None, :] - a[None], e) / np.sum(e * e, 1), 0, 1)
+    q = a[None] + t[..., None] * e[None]
+    return np.linalg.norm(q - p[:, None, :], axis=-1)
+
+
+def _stats(x: list[float]) -> dict[str, float | int]:
+    if not x:
+        return {"n": 0}
+    a = np.abs(np.array(x))
+    return {
+        "n": int(a.size),
+        "mean": round(float(a.mean()), 3),
+        "median": round(float(np.median(a)), 3),
+        "max": round(float(a.max()), 3),
+    }
+
+
+def evaluate_map(
+    doc: dict[str, Any], scenario: Any, truth_traj: np.ndarray | None, first_pose: np.ndarray
+) -> dict[str, Any]:
+    """Errors of ``doc`` (map.json) against ``scenario`` (see the module docstring).
+
+    Parameters
+    ----------
+    truth_traj : ndarray, shape (k, 4), optional
+        True ``[t, x, y, yaw]`` in the first-pose frame.
+    first_pose : ndarray, shape (3,)
+        World ``[x, y, yaw]`` of the robot's first pose.
+    """
+    g = truth_geometry(scenario)
+    faces = np.hstack(
+        [_to_frame(g["faces"][:, :2], first_pose), _to_frame(g["faces"][:, 2:], first_pose)]
+    )
+    room = np.hstack(
+        [_to_frame(g["room"][:, :2], first_pose), _to_frame(g["room"][:, 2:], first_pose)]
+    )
+    corners = _to_frame(g["corners"], first_pose)
+    edges = _to_frame(g["edges"], first_pose)
+    out: dict[str, Any] = {}
+    walls = np.array(doc["walls"], float).reshape(-1, 4)
+    fe = faces[:, 2:] - faces[:, :2]
+    fa = np.arctan2(fe[:, 1], fe[:, 0])
+    fn = np.column_stack([-np.sin(fa), np.cos(fa)])
+    flen = np.linalg.norm(fe, axis=1)
+    # match[w, f]: mapped wall w lies along true face f (15 deg, 0.5 m, overlapping)
+    off = np.full((len(walls), len(faces)), np.inf)
+    dang = np.zeros((len(walls), len(faces)))
+    covered = np.zeros(len(faces))
+    for i, w in enumerate(walls):
+        e = w[2:] - w[:2]
+        a = math.atan2(e[1], e[0])
+        dang[i] = np.abs((fa - a + np.pi / 2) % np.pi - np.pi / 2)
+        mid = 0.5 * (w[:2] + w[2:])
+        o = np.abs(np.sum((mid - faces[:, :2]) * fn, 1))
+        t = np.sum((mid - faces[:, :2]) * fe, 1) / flen
+        ok = (dang[i] < np.radians(15)) & (t > -0.5) & (t < flen + 0.5) & (o < 0.5)
+        off[i] = np.where(ok, o, np.inf)
+        if np.any(ok):
+            f = int(np.argmin(off[i]))
+            t1 = np.dot(w[:2] - faces[f, :2], fe[f]) / flen[f]
+            t2 = np.dot(w[2:] - faces[f, :2], fe[f]) / flen[f]
+            lo, hi = sorted((t1, t2))
+            covered[f] += max(0.0, min(hi, flen[f]) - max(lo, 0.0))
+    pos_err, ang_err = [], []
+    best_of_face = np.argmin(off, axis=0) if len(walls) else np.zeros(0, int)
+    for f in range(len(faces)):
+        if len(walls) and np.isfinite(off[best_of_face[f], f]):
+            pos_err.append(float(off[best_of_face[f], f]))
+            ang_err.append(float(np.degrees(dang[best_of_face[f], f])))
+    matched = np.isfinite(off).any(axis=1) if len(walls) else np.zeros(0, bool)
+    n_room = len(room)  # the outline's faces come first in ``faces``
+    out["walls"] = {
+        "mapped": len(walls),
+        "unmatched": int((~matched).sum()),
+        "true_faces": len(faces),
+        "faces_found": len(pos_err),
+        "position_m": _stats(pos_err),
+        "orientation_deg": _stats(ang_err),
+        "outline_coverage": round(
+            float(np.minimum(covered[:n_room], flen[:n_room]).sum() / flen[:n_room].sum()), 3
+        ),
+    }
+    mc = np.array(doc["corners"], float).reshape(-1, 2)
+    c_err = []
+    for c in corners:
+        if len(mc):
+            d = np.linalg.norm(mc - c, axis=1).min()
+            if d < 0.5:
+                c_err.append(float(d))
+    out["corners"] = {"true": len(corners), "mapped": len(mc), **_stats(c_err)}
+    mp = np.array(doc["points"], float).reshape(-1, 2)
+    e_err = []
+    for p in edges:
+        if len(mp):
+            d = np.linalg.norm(mp - p, axis=1).min()
+            if d < 0.5:
+                e_err.append(float(d))
+    out["edges"] = {"true": len(edges), "mapped_points": len(mp), **_stats(e_err)}
+    per_obj = {}
+    for oid, fp in g["objects"]:
+        fp_f = _to_frame(fp, first_pose)
+        segs = np.hstack([fp_f[:-1], fp_f[1:]])
+        d = float(_seg_point_dist(segs, mp).min()) if len(mp) else float("inf")
+        per_obj[oid] = round(d, 3)
+    out["objects"] = {
+        "nearest_point_m": per_obj,
+        "found_within_0.15": int(sum(v <= 0.15 for v in per_obj.values())),
+        "total": len(per_obj),
+    }
+    traj = np.array(doc["trajectory"], float).reshape(-1, 4)
+    if truth_traj is not None and len(traj):
+        idx = np.clip(np.searchsorted(truth_traj[:, 0], traj[:, 0] - 1e-9), 0, len(truth_traj) - 1)
+        tt = truth_traj[idx]
+        dp = np.linalg.norm(traj[:, 1:3] - tt[:, 1:3], axis=1)
+        dy = (traj[:, 3] - tt[:, 3] + np.pi) % (2 * np.pi) - np.pi
+        out["trajectory"] = {
+            "rmse_m": round(float(np.sqrt(np.mean(dp**2))), 3),
+            "max_m": round(float(dp.max()), 3),
+            "final_m": round(float(dp[-1]), 3),
+            "yaw_rmse_deg": round(float(np.degrees(np.sqrt(np.mean(dy**2)))), 2),
+        }
+    return out

@@ -6,7 +6,8 @@ as the shipped TOML files) programmatically: ``ceil(N / 4)`` rooms of ``ROOM_LEN
 concrete outer walls, and four bat-type sensors per room on the long walls (two on the south
 wall looking north, two on the north wall looking south, each turned a little towards the room
 centre, as in foyer3). People walk back and forth along the building through the doors, each
-over a stretch of about three rooms, so that they cross room (and fusion cell) borders.
+over a stretch of up to three rooms, starting a few metres before its centre, so that they
+cross room (and fusion cell) borders soon after the start and then every few seconds.
 
 Pure: no files, no clocks.
 """
@@ -24,6 +25,8 @@ ROOM_LENGTH = 10.0
 ROOM_DEPTH = 8.0
 #: Sensors per room.
 NODES_PER_ROOM = 4
+#: A person starts this far (m) before the centre of their route.
+START_OFFSET = 9.0
 #: Half width of the doors in the partitions, m.
 DOOR_HALF_WIDTH = 1.0
 
@@ -90,26 +93,31 @@ def building_scenario(
         nodes.append({"id": f"n{i:03d}", "role": "bat", "pose": [x, y, 1.2, yaw]})
     rng = np.random.default_rng(seed)
     people = []
-    span = min(3, rooms)  # rooms a person walks through
+    span = min(3, rooms)  # rooms a person's route covers
     for j in range(n_people):
         first = int(rng.integers(0, rooms - span + 1))
         lane = mid + (1.5 if j % 2 else -1.5) * (0.5 + 0.5 * ((j // 2) % 2))
-        x0 = first * ROOM_LENGTH + 2.0
-        x1 = (first + span) * ROOM_LENGTH - 2.0
-        # Waypoints: along a lane, through the doors (at y = mid) where the route crosses a
-        # partition, so people never walk through walls.
-        pts = [[x0, lane]]
-        for r in range(first + 1, first + span):
-            xd = r * ROOM_LENGTH
-            pts += [[xd - 1.5, mid], [xd + 1.5, mid]]
-        pts.append([x1, lane])
+        centre = (first + span / 2) * ROOM_LENGTH
+        west, east = first * ROOM_LENGTH + 2.0, (first + span) * ROOM_LENGTH - 2.0
+        # Start START_OFFSET m before the route's centre, walk to the far end and back: a
+        # person crosses the centre (and the borders near it) within seconds of the start.
         if rng.random() < 0.5:
-            pts.reverse()
+            x_start, x_end = max(west, centre - START_OFFSET), east
+        else:
+            x_start, x_end = min(east, centre + START_OFFSET), west
+        pts = [[x_start, lane]]
+        # Through the doors (at y = mid) where the route crosses a partition.
+        step = 1 if x_end > x_start else -1
+        for r in range(1, rooms)[::step]:
+            xd = r * ROOM_LENGTH
+            if min(x_start, x_end) + 1.5 < xd < max(x_start, x_end) - 1.5:
+                pts += [[xd - 1.5 * step, mid], [xd + 1.5 * step, mid]]
+        pts.append([x_end, lane])
         people.append(
             {
                 "id": j + 1,
                 "waypoints": pts,
-                "speed": float(round(rng.uniform(1.0, 1.4), 2)),
+                "speed": float(round(rng.uniform(1.1, 1.4), 2)),
                 "enter": float(round(0.3 * j, 2)),
             }
         )

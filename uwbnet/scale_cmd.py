@@ -231,7 +231,6 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
     out_dir = Path(cfg.out) if cfg.out else Path(tempfile.mkdtemp(prefix="uwbnet-scale."))
     out_dir.mkdir(parents=True, exist_ok=True)
     port = free_tcp_port()
-    epoch = time.time() + 1.0
     base = {
         "net": cfg.net,
         "nodes": cfg.nodes,
@@ -253,6 +252,16 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         def address(host: int) -> str:
             return netns.hub_address(host, port) if netns else f"tcp/127.0.0.1:{port}"
 
+        # The nodes and workers start first (importing, building the scene, waiting for the
+        # router); the hub last, with the TDMA epoch (scenario time 0) just after its start, so
+        # that the people are where the scenario puts them when the measurement begins.
+        for i, (name, role, extra) in enumerate(_plan(cfg)):
+            # Hosts in turn; the hub's host only when there is no other.
+            host = 0 if cfg.hosts == 1 else 1 + i % (cfg.hosts - 1)
+            rc = base | extra | {"connect": address(host)}
+            procs.append(_spawn(name, role, host, rc, prefix(host), out_dir))
+        _wait_for(procs, "started", cfg.startup_timeout, out_dir)
+        epoch = time.time() + 1.0
         hub_cfg = base | {
             "listen": f"tcp/0.0.0.0:{port}" if netns else f"tcp/127.0.0.1:{port}",
             "epoch": epoch,
@@ -260,12 +269,6 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         }
         hub = _spawn("hub", "hub", 0, hub_cfg, prefix(0), out_dir)
         procs.append(hub)
-        _wait_for([hub], "ready", cfg.startup_timeout, out_dir)
-        for i, (name, role, extra) in enumerate(_plan(cfg)):
-            # Hosts in turn; the hub's host only when there is no other.
-            host = 0 if cfg.hosts == 1 else 1 + i % (cfg.hosts - 1)
-            rc = base | extra | {"connect": address(host)}
-            procs.append(_spawn(name, role, host, rc, prefix(host), out_dir))
         _wait_for(procs, "ready", cfg.startup_timeout, out_dir)
         _wait_for([hub], "scheduled", cfg.startup_timeout, out_dir)
         time.sleep(WARMUP)

@@ -9,7 +9,8 @@ Roles:
 * ``nodes``: a group of simulated bat-type nodes with their node agents on one zenoh session.
 * ``worker``: the fusion worker of one cell (fuses the nodes of its cell plus a margin).
 
-Each prints ``ready`` on stdout once it is up, and stops cleanly on SIGTERM. The scenario is
+Nodes and workers print ``started`` once initialised (before they wait for the router); each
+role prints ``ready`` on stdout once it is up, and stops cleanly on SIGTERM. The scenario is
 rebuilt in every process from ``(nodes, people, seed)``
 (:func:`sim_nodes.building.building_scenario`); people move deterministically in scenario
 time, whose 0 is the schedule's TDMA epoch.
@@ -139,6 +140,7 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
     from uwbnet.processes import fetch_epoch
 
     network = SimNetwork(building(cfg), cfg["seed"], people_range=PEOPLE_RANGE)
+    _say("started")
     with _session(cfg) as session, contextlib.ExitStack() as stack:
         epoch = fetch_epoch(session, cfg["net"], stop)
         if epoch is None:
@@ -160,6 +162,7 @@ def run_worker(cfg: dict[str, Any], stop: threading.Event) -> None:
     from fusion_center.service import FusionConfig, FusionService
 
     cell = cfg["cell"]
+    _say("started")
     with _session(cfg) as session:
         fusion = FusionService(
             session,

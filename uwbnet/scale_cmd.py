@@ -253,23 +253,21 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
             return netns.hub_address(host, port) if netns else f"tcp/127.0.0.1:{port}"
 
         # The nodes and workers start first (importing, building the scene, waiting for the
-        # router); the hub last, with the TDMA epoch (scenario time 0) just after its start, so
-        # that the people are where the scenario puts them when the measurement begins.
+        # router); the hub last: it sets the TDMA epoch (scenario time 0) once it is up.
         for i, (name, role, extra) in enumerate(_plan(cfg)):
             # Hosts in turn; the hub's host only when there is no other.
             host = 0 if cfg.hosts == 1 else 1 + i % (cfg.hosts - 1)
             rc = base | extra | {"connect": address(host)}
             procs.append(_spawn(name, role, host, rc, prefix(host), out_dir))
         _wait_for(procs, "started", cfg.startup_timeout, out_dir)
-        epoch = time.time() + 1.0
         hub_cfg = base | {
             "listen": f"tcp/0.0.0.0:{port}" if netns else f"tcp/127.0.0.1:{port}",
-            "epoch": epoch,
             "out": str(out_dir),
         }
         hub = _spawn("hub", "hub", 0, hub_cfg, prefix(0), out_dir)
         procs.append(hub)
         _wait_for(procs, "ready", cfg.startup_timeout, out_dir)
+        epoch = float(next(x for x in hub.lines if x.startswith("ready")).split()[-1])
         _wait_for([hub], "scheduled", cfg.startup_timeout, out_dir)
         time.sleep(WARMUP)
         # The window: whole TDMA frames.

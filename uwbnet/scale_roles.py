@@ -88,18 +88,17 @@ def run_hub(cfg: dict[str, Any], stop: threading.Event) -> None:
         )
         stack.callback(sub.undeclare)
         single = cfg["workers"] == 1
-        fusion = FusionService(
-            session,
-            FusionConfig(net=cfg["net"], track=single),
-            epoch=cfg["epoch"],
-        )
+        # Scenario time 0 (the TDMA epoch) is set now that the hub is up, not when it was
+        # launched: the people are where the scenario says when the measurement starts.
+        epoch = time.time() + 0.5
+        fusion = FusionService(session, FusionConfig(net=cfg["net"], track=single), epoch=epoch)
         fusion.start()
         stack.callback(fusion.stop)
         if not single:
             gateway = CellGateway(session, cfg["net"], cells(cfg))
             gateway.start()
             stack.callback(gateway.stop)
-        _ready("hub")
+        _ready(f"hub {epoch!r}")
         announced = False
         while not stop.wait(0.1):
             sched = fusion.schedule

@@ -193,11 +193,20 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
     }
 
 
+def bench_scale(seed: int = 1) -> dict[str, Any]:
+    """CPU per acquisition of simulation, node DSP and fusion (one center / 4 cells) in
+    generated buildings of 12, 48 and 100 nodes (``uwbnet.bench_scale``)."""
+    from uwbnet.bench_scale import run
+
+    return {"bench": "scale", **run(seed=seed), **_machine()}
+
+
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "channel": bench_channel,
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
+    "scale": bench_scale,
     "sim": bench_sim,
 }
 

@@ -92,7 +92,7 @@ def building_scenario(
         x = (room + fx) * ROOM_LENGTH
         nodes.append({"id": f"n{i:03d}", "role": "bat", "pose": [x, y, 1.2, yaw]})
     rng = np.random.default_rng(seed)
-    people = []
+    people: list[dict] = []
     span = min(3, rooms)  # rooms a person's route covers
     for j in range(n_people):
         first = int(rng.integers(0, rooms - span + 1))
@@ -106,19 +106,22 @@ def building_scenario(
         else:
             x_start, x_end = min(east, centre + START_OFFSET), west
         pts = [[x_start, lane]]
-        # Through the doors (at y = mid) where the route crosses a partition.
+        # Through the doors where the route crosses a partition, on the lane's side of the
+        # door (people on the two sides pass each other 0.8 m apart).
         step = 1 if x_end > x_start else -1
+        y_door = mid + 0.4 * np.sign(lane - mid)
         for r in range(1, rooms)[::step]:
             xd = r * ROOM_LENGTH
             if min(x_start, x_end) + 1.5 < xd < max(x_start, x_end) - 1.5:
-                pts += [[xd - 1.5 * step, mid], [xd + 1.5 * step, mid]]
+                pts += [[xd - 1.5 * step, y_door], [xd + 1.5 * step, y_door]]
         pts.append([x_end, lane])
         people.append(
             {
                 "id": j + 1,
                 "waypoints": pts,
                 "speed": float(round(rng.uniform(1.1, 1.4), 2)),
-                "enter": float(round(0.3 * j, 2)),
+                # Staggered entries: people on the same route do not walk in step.
+                "enter": float(round(rng.uniform(0.0, 3.0), 2)) if j else 0.0,
             }
         )
     data = {

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import itertools
 import json
 import math
 import os
@@ -319,6 +318,7 @@ def analyse(
 ) -> dict[str, Any]:
     """Latency, drops, throughput and tracking figures of a run's ``tracks.jsonl``."""
     from fusion_center.offline import read_tracks
+    from fusion_center.tracking.cells import border_crossings
     from fusion_center.tracking.metrics import evaluate
     from sim_nodes.network import SimNetwork
     from uwbnet.scale_roles import building, cells
@@ -347,13 +347,8 @@ def analyse(
         xy = np.array([(p["x"], p["y"]) for p in people], dtype=np.float64).reshape(-1, 2)
         truth.append((float(t), ids, xy))
     figures = evaluate(truth, tracks, c=1.0) if tracks else {}
-    crossings = 0
     strips = cells(base | {"workers": max(cfg.workers, 1)})
-    inside = [s for s in truth if w0 <= s[0] < w1]
-    for (_, ids0, xy0), (_, ids1, xy1) in itertools.pairwise(inside):
-        _, i0, i1 = np.intersect1d(ids0, ids1, return_indices=True)
-        for a, b in zip(xy0[i0], xy1[i1], strict=True):
-            crossings += strips.crossings(float(a[0]), float(b[0]))
+    crossings = border_crossings(strips, [s for s in truth if w0 <= s[0] < w1])
     switches = figures.get("id_switches")
     return {
         "nodes": cfg.nodes,

@@ -22,6 +22,7 @@ fuses at one center and has no sharding. Pure: no I/O, time ``t`` is an argument
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 
@@ -30,7 +31,7 @@ import numpy.typing as npt
 
 from fusion_center.tracking.base import TrackerOutput, TrackEstimate
 
-__all__ = ["HandoverMerger", "StripCells"]
+__all__ = ["HandoverMerger", "StripCells", "border_crossings", "nodes_of_cells"]
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -237,3 +238,17 @@ def nodes_of_cells(
         tuple(n for n, m in zip(ids, cells.members(k, xy, margin), strict=True) if m)
         for k in range(cells.count)
     ]
+
+
+def border_crossings(
+    cells: StripCells, truth: Sequence[tuple[float, npt.ArrayLike, npt.ArrayLike]]
+) -> int:
+    """Cell borders crossed by the targets of a truth series ``(t, ids (m,), xy (m, 2))``
+    (time-ordered), between consecutive samples in which a target is present."""
+    total = 0
+    for (_, ids0, xy0), (_, ids1, xy1) in itertools.pairwise(truth):
+        _, a, b = np.intersect1d(np.asarray(ids0), np.asarray(ids1), return_indices=True)
+        x0 = np.asarray(xy0, dtype=np.float64).reshape(-1, 2)[a, 0]
+        x1 = np.asarray(xy1, dtype=np.float64).reshape(-1, 2)[b, 0]
+        total += sum(cells.crossings(float(p), float(q)) for p, q in zip(x0, x1, strict=True))
+    return total

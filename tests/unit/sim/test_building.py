@@ -21,11 +21,16 @@ def test_building_has_the_requested_nodes_inside_it(n):
 def test_people_cross_the_middle_of_their_route_soon_and_stay_inside():
     s = building_scenario(12, 2, seed=1)
     net = SimNetwork(s, 1)
-    xs = np.array([[p["x"] for p in net.truth(t)] for t in np.arange(0.5, 12.0, 0.5)])
-    assert ((xs > 0) & (xs < building_length(12))).all()
-    # Both people pass x = 15 (the centre of the 30 m building) within 12 s.
-    assert ((xs[:, 0] - 15.0)[:-1] * (xs[:, 0] - 15.0)[1:] < 0).any()
-    assert ((xs[:, 1] - 15.0)[:-1] * (xs[:, 1] - 15.0)[1:] < 0).any()
+    xs: dict[int, list[float]] = {}
+    for t in np.arange(0.0, 12.0, 0.5):
+        for p in net.truth(t):
+            xs.setdefault(p["id"], []).append(p["x"])
+    assert sorted(xs) == [1, 2]
+    for x in xs.values():
+        x = np.array(x)
+        assert ((x > 0) & (x < building_length(12))).all()
+        # Each person passes x = 15 (the centre of the 30 m building) within 12 s.
+        assert ((x - 15.0)[:-1] * (x - 15.0)[1:] < 0).any()
 
 
 def test_people_range_leaves_far_people_out_of_a_nodes_acquisition():

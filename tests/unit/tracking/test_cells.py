@@ -20,7 +20,8 @@ def _out(t: float, tracks: list[tuple[int, float, float]]) -> TrackerOutput:
 def test_strip_cells_assign_points_and_count_crossings():
     cells = StripCells.even(0.0, 40.0, 4)
     assert cells.borders == (10.0, 20.0, 30.0)
-    assert cells.cell_of([[0.0, 1.0], [10.0, 1.0], [29.9, 0.0], [99.0, 0.0]]).tolist() == [0, 1, 2, 3]
+    points = [[0.0, 1.0], [10.0, 1.0], [29.9, 0.0], [99.0, 0.0]]
+    assert cells.cell_of(points).tolist() == [0, 1, 2, 3]
     assert cells.crossings(5.0, 25.0) == 2 and cells.crossings(25.0, 5.0) == 2
     assert cells.crossings(11.0, 19.0) == 0
     members = nodes_of_cells(cells, {"a": (9.0, 0.0), "b": (15.0, 0.0), "c": (35.0, 0.0)}, 2.0)

@@ -26,6 +26,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -203,6 +204,10 @@ def _wait_for(procs: list[_Proc], prefix: str, timeout: float, log_dir: Path) ->
         time.sleep(0.1)
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def _stop_all(procs: list[_Proc]) -> None:
     for p in procs:
         if p.popen.poll() is None:
@@ -239,6 +244,11 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:
+        if threading.current_thread() is threading.main_thread():
+            # SIGTERM (a ``timeout``, a CI runner) stops the run like Ctrl-C: the exit stack
+            # stops the processes and deletes the namespaces.
+            previous = signal.signal(signal.SIGTERM, _interrupt)
+            stack.callback(signal.signal, signal.SIGTERM, previous)
         if netns is not None:
             stack.callback(netns.delete)
             netns.create()

@@ -208,13 +208,16 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-def _stop_all(procs: list[_Proc]) -> None:
+def _stop_all(procs: list[_Proc], grace: float = 15.0) -> None:
+    """SIGTERM every process, then SIGKILL what is left after ``grace`` s in all (a process
+    still blocked opening its session, waiting for the router, cannot act on SIGTERM)."""
     for p in procs:
         if p.popen.poll() is None:
             p.popen.terminate()
+    deadline = time.monotonic() + grace
     for p in procs:
         try:
-            p.popen.wait(20.0)
+            p.popen.wait(max(0.1, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             p.popen.kill()
             p.popen.wait(5.0)

@@ -95,7 +95,12 @@ class FusionCore:
         return min(self.config.max_range, window)
 
     def add_detections(self, det: Detections) -> list[TrackerOutput]:
-        """Queue one node's detections; return the tracker outputs of frames now complete."""
+        """Queue one node's detections; return the tracker outputs of frames now complete.
+
+        Ranging rounds of mobile nodes (``links``) are not target detections: they go to
+        :class:`~fusion_center.pose_core.PoseCore`, never to the tracker."""
+        if det.links is not None:
+            return []
         last = self._seen.get(det.src)
         if last is not None and det.seq <= last[0] and det.t <= last[1]:
             # Same or older sequence number and not newer: a duplicate or a reordered

@@ -16,13 +16,16 @@ from typing import Any
 
 import zenoh
 
-from protocol import ProtocolError, keys
+from protocol import ProtocolError, decode, keys
 from protocol.errors import KeyExprError
 from protocol.messages import unpack
 from protocol.recording import RecordingWriter
 from protocol.transport import FifoChannel
 
 log = logging.getLogger(__name__)
+
+#: Kinds that have a Foxglove view on a ``/viz`` channel.
+_VIZ_KINDS = frozenset({"node_info", "tracks", "truth", "image"})
 
 
 class NetworkRecorder:
@@ -31,6 +34,9 @@ class NetworkRecorder:
     ``start()``/``stop()`` are idempotent; ``stop()`` drains the queue and closes the file.
     Messages that are not valid uwbnet messages are counted in ``rejected``; messages the
     queue could not hold are counted in ``dropped`` (the queue is sized for seconds of ``ir``).
+
+    Unless ``viz`` is off, Foxglove ``/viz/...`` JSON channels are written beside them
+    (:mod:`fusion_center.viewer.foxglove`), with ``walls`` as the floor plan.
 
     Crash safety: every ``flush_period`` seconds the chunk in progress is ended and handed to
     the OS, so a recorder killed by SIGKILL leaves ``NAME.partial`` readable up to its last
@@ -44,8 +50,14 @@ class NetworkRecorder:
         path: str | os.PathLike[str],
         *,
         flush_period: float = 1.0,
+        walls: list[list[float]] | None = None,
+        viz: bool = True,
     ) -> None:
+        from fusion_center.viewer.foxglove import FoxgloveScene
+
         self.session, self.net, self.flush_period = session, net, flush_period
+        #: Foxglove ``/viz`` channels written beside the contract's (None: off).
+        self.viz = FoxgloveScene(walls or []) if viz else None
         self.writer = RecordingWriter(path)
         self._inbox: FifoChannel[tuple[str, bytes]] = FifoChannel(20000)
         self._stop = threading.Event()
@@ -118,6 +130,21 @@ class NetworkRecorder:
                 self.rejected += 1
                 return
         self.writer.write(key, parsed.kind, payload, float(t))
+        if self.viz is not None and parsed.kind in _VIZ_KINDS:
+            self._write_viz(key, payload)
+
+    def _write_viz(self, key: str, payload: bytes) -> None:
+        from fusion_center.viewer.foxglove import dumps, foxglove_schema
+
+        assert self.viz is not None
+        try:
+            msg = decode(payload)
+            docs = self.viz.on_message(msg)
+        except (ProtocolError, ValueError) as exc:
+            log.warning("no viewer message for %s: %s", key, exc)
+            return
+        for topic, schema, doc in docs:
+            self.writer.write_json(topic, schema, foxglove_schema(schema), dumps(doc), msg.t)
 
     def _fetch_info(self, node: str) -> None:
         key = keys.node_key(self.net, node, "info")

@@ -12,6 +12,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -19,7 +20,9 @@ import numpy as np
 import zenoh
 
 from fusion_center.core import FusionCore, FusionCoreConfig
+from fusion_center.localization.mobile import LocalizerConfig, PoseResult
 from fusion_center.offline import make_tracker
+from fusion_center.pose_core import PoseCore, poses_message
 from fusion_center.tracking.base import TrackerOutput
 from protocol import (
     Detections,
@@ -51,6 +54,7 @@ class FusionConfig:
     frame_period : TDMA frame period, s (50 impulse responses per second per transmitter).
     flush_after : a frame is processed at the latest this long (s) after its last detection.
     core : frame assembly parameters.
+    localization : localization of mobile nodes from their ranging rounds (``poses``).
     nodes : fuse only these nodes (subscribing to their keys alone: a fusion worker of one
         cell, :mod:`fusion_center.gateway`); None: every node of the network.
     schedule : own the TDMA schedule (publish it, serve its queryable). Exactly one service
@@ -65,6 +69,7 @@ class FusionConfig:
     frame_period: float = 0.02
     flush_after: float = 0.05
     core: FusionCoreConfig = dataclasses.field(default_factory=FusionCoreConfig)
+    localization: LocalizerConfig = dataclasses.field(default_factory=LocalizerConfig)
     nodes: tuple[str, ...] | None = None
     schedule: bool = True
     track: bool = True
@@ -95,6 +100,8 @@ class FusionService:
     ) -> None:
         self.session, self.config, self.clock = session, config, clock
         self.core = FusionCore(make_tracker(config.method), config.core)
+        self.pose_core = PoseCore(config.localization)
+        self.latest_poses: dict[str, PoseResult] = {}
         self.epoch = clock() if epoch is None else epoch
         self._inbox: FifoChannel[tuple[str, str, bytes]] = FifoChannel(8192)
         self._stop = threading.Event()
@@ -106,9 +113,12 @@ class FusionService:
         self.decode_errors = 0
         self._schedule: TdmaSchedule | None = None
         self._schedule_bytes = b""
-        self._seq = {"tracks": 0, "schedule": 0}
+        self._seq = {"tracks": 0, "schedule": 0, "poses": 0}
         self._want_info: set[str] = set()
         self._asked: dict[str, float] = {}
+        #: Recent local position estimates ``(t, positions (k, 2), cov (k, 2, 2))`` for viewers
+        #: (the web view's moving-target image); bounded, the oldest fall off unread.
+        self.recent_estimates: deque[tuple[float, Any, Any]] = deque(maxlen=4096)
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -122,7 +132,10 @@ class FusionService:
             cfg.tracks_key or keys.fusion_key(net, "tracks"),
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
-        self._decl.append(self._pub_tracks)
+        self._pub_poses = s.declare_publisher(
+            keys.fusion_key(net, "poses"), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        self._decl += [self._pub_tracks, self._pub_poses]
         if cfg.schedule:
             self._pub_schedule = s.declare_publisher(
                 keys.schedule_key(net), congestion_control=zenoh.CongestionControl.BLOCK
@@ -185,6 +198,10 @@ class FusionService:
         with self._lock:
             return self.latest, {k: dataclasses.replace(v) for k, v in self.health.items()}
 
+    def node_infos(self) -> dict[str, NodeInfo]:
+        """A copy of the known node descriptions (safe to call from another thread)."""
+        return dict(self.core.nodes)
+
     # -- worker ----------------------------------------------------------------------------
 
     def _run(self) -> None:
@@ -218,7 +235,12 @@ class FusionService:
                 h.detections += 1
                 h.last_det_t = msg.t
                 h.latency_ms = (self.clock() - msg.t) * 1e3
-            self._publish(self.core.add_detections(msg))
+            if msg.links is not None:
+                self._publish_pose(self.pose_core.add_ranging(msg))
+            else:
+                if msg.positions is not None and msg.positions.shape[0]:
+                    self.recent_estimates.append((msg.t, msg.positions, msg.cov))
+                self._publish(self.core.add_detections(msg))
         elif leaf == "info" and isinstance(msg, NodeInfo):
             self._add_node(msg)
         elif leaf == "status" and isinstance(msg, Status):
@@ -274,6 +296,7 @@ class FusionService:
     def _add_node(self, info: NodeInfo) -> None:
         known = self.core.nodes.get(info.src)
         self.core.add_node(info)
+        self.pose_core.add_node(info)
         if known is None or known.antennas != info.antennas:
             self._reschedule()
 
@@ -321,6 +344,17 @@ class FusionService:
             self._pub_tracks.put(msg.to_wire())
             with self._lock:
                 self.latest = out
+
+    def _publish_pose(self, result: tuple[str, PoseResult] | None) -> None:
+        """Publish the latest pose of every mobile node after one of them was updated."""
+        if result is None:
+            return
+        node, res = result
+        with self._lock:
+            self.latest_poses[node] = res
+            latest = dict(self.latest_poses)
+        msg = poses_message(latest, src=self.config.service_id, seq=self._next("poses"), t=res.t)
+        self._pub_poses.put(msg.to_wire())
 
     def _next(self, stream: str) -> int:
         seq = self._seq[stream]

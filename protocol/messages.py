@@ -152,6 +152,20 @@ class Ir(Message):
 
 
 @_frozen
+class LinkRange:
+    """One node-to-node range (optional ``detections.links``, docs/localization.md): the
+    first-path length of the direct link between this node and anchor ``{id}``, m, from a
+    round-trip ToA exchange (clock offsets cancel), its standard deviation, m, the per-impulse-
+    response LOS decision and the received SNR, dB."""
+
+    range: float = wire(Float())
+    std: float = wire(Float())
+    los: bool = wire(Bool())
+    snr_db: float = wire(Float())
+    extra: Mapping[str, Any] = dataclasses.field(default_factory=_no_extra, compare=False)
+
+
+@_frozen
 class Detections(Message):
     """Ranges (bistatic path lengths, m) per receiver and optional world x, y position estimates
     with covariances, extracted from one acquisition."""
@@ -164,6 +178,7 @@ class Detections(Message):
     amplitudes: Mapping[str, tuple[float, ...]] = wire(MapOf(Vec(None)))
     positions: npt.NDArray[np.float64] | None = optional(Array(("<f8",), ndim=2))
     cov: npt.NDArray[np.float64] | None = optional(Array(("<f8",), ndim=3))
+    links: Mapping[str, LinkRange] | None = optional(MapOf(Nested(LinkRange), ID_RE))
 
     def __post_init__(self) -> None:
         for rx, r in self.ranges.items():

@@ -89,6 +89,31 @@ class RecordingWriter:
         )
         self.count += 1
 
+    def write_json(
+        self, topic: str, schema_name: str, schema: bytes, data: bytes, t: float
+    ) -> None:
+        """Append a JSON document on a viewer channel (``/viz/...``, message encoding ``json``,
+        schema ``schema_name`` given as JSON schema ``schema``) at network time ``t`` (s)."""
+        if self._file is None:
+            raise RecordingError(f"{self.path}: recording already closed")
+        if not topic.startswith(VIZ_PREFIX):
+            raise RecordingError(f"viewer channel {topic!r} is not under {VIZ_PREFIX}")
+        channel = self._channels.get(topic)
+        if channel is None:
+            key = "json:" + schema_name
+            schema_id = self._schemas.get(key)
+            if schema_id is None:
+                schema_id = self._writer.register_schema(
+                    name=schema_name, encoding="jsonschema", data=schema
+                )
+                self._schemas[key] = schema_id
+            channel = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+            self._channels[topic] = channel
+        ns = seconds_to_ns(t)
+        self._writer.add_message(channel_id=channel, log_time=ns, publish_time=ns, data=data)
+
     def write_message(self, topic: str, msg: Message) -> bytes:
         """Encode ``msg``, append it on ``topic`` and return the bytes written."""
         payload = msg.to_wire()

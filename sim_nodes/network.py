@@ -89,6 +89,25 @@ def _build_node(model: NodeModel) -> _Node:
     )
 
 
+def scenario_walls(scenario: Scenario) -> Walls:
+    """The scenario's ``[[walls]]`` with their materials' reflection, one-way transmission and
+    excess path length ``thickness (sqrt(eps_r) - 1)``, m."""
+    mats = scenario.materials
+    walls = scenario.walls
+    if not walls:
+        return Walls.empty()
+    return Walls(
+        start=np.array([w.start for w in walls], float),
+        end=np.array([w.end for w in walls], float),
+        height=np.array([w.height for w in walls], float),
+        reflection=np.array([mats[w.material].gamma() for w in walls], float),
+        transmission=np.array([mats[w.material].transmission() for w in walls], float),
+        excess=np.array(
+            [w.thickness * (np.sqrt(mats[w.material].permittivity) - 1) for w in walls]
+        ),
+    )
+
+
 class SimNetwork:
     """A network of simulated static bat-type nodes in a scenario.
 
@@ -123,22 +142,7 @@ class SimNetwork:
         self.people_range = float(people_range)
         self.radar = MSequenceRadar(scenario.radar.config())
         ch = scenario.channel
-        mats = scenario.materials
-        walls = scenario.walls
-        self.walls = (
-            Walls(
-                start=np.array([w.start for w in walls], float),
-                end=np.array([w.end for w in walls], float),
-                height=np.array([w.height for w in walls], float),
-                reflection=np.array([mats[w.material].gamma() for w in walls], float),
-                transmission=np.array([mats[w.material].transmission() for w in walls], float),
-                excess=np.array(
-                    [w.thickness * (np.sqrt(mats[w.material].permittivity) - 1) for w in walls]
-                ),
-            )
-            if walls
-            else Walls.empty()
-        )
+        self.walls = scenario_walls(scenario)
         # Child n + 1 (the channel realization) is new; children 0..n are unchanged by it.
         children = np.random.SeedSequence(seed).spawn(len(scenario.nodes) + 2)
         scene_rng = np.random.default_rng(children[0])

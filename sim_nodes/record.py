@@ -45,8 +45,16 @@ def simulate_to_mcap(
 
     Writes every node's ``node_info`` and the TDMA schedule at t = 0, then per TDMA frame the
     ``ir`` of every node in its slot and one ``truth`` message. Returns the messages written.
+    A ranging scenario (``[[mobiles]]`` only) goes to
+    :func:`sim_nodes.ranging_record.simulate_ranging_to_mcap`.
     The file appears only when complete.
     """
+    if scenario.mobiles and not scenario.nodes:
+        from sim_nodes.ranging_record import simulate_ranging_to_mcap
+
+        return simulate_ranging_to_mcap(
+            scenario, out, duration=duration, seed=seed, net=net, progress=progress
+        )
     network = SimNetwork(scenario, seed)
     frame_period = float(scenario.frame_period)
     sched = schedule_message(network, frame_period)

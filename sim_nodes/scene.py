@@ -382,6 +382,53 @@ class RobotModel(_Model):
         return self
 
 
+class AnchorModel(_Model):
+    """``[[anchors]]``: a fixed ranging node (one omnidirectional antenna) at a known position."""
+
+    id: str = Field(pattern=r"^[A-Za-z0-9_-]+$")
+    position: Point3
+
+
+class MobileModel(_Model):
+    """``[[mobiles]]``: a mobile ranging node moving along a closed ``track`` of corners at
+    ``speed``, pausing ``pause`` s at each corner (static intervals for the eq. (6) test),
+    its antenna at ``height``."""
+
+    id: str = Field(pattern=r"^[A-Za-z0-9_-]+$")
+    track: Annotated[list[Point2], Field(min_length=1)]
+    speed: float = Field(0.5, ge=0.0, le=5.0)
+    pause: float = Field(0.0, ge=0.0)
+    height: float = Field(1.0, gt=0.0, le=10.0)
+
+
+class RangingModel(_Model):
+    """``[ranging]``: the node-to-node RTToA link (docs/localization.md).
+
+    The radar samples ``n`` points at ``fs`` over [f_low, f_high] (``fc`` > 0: complex baseband);
+    ``snr_db`` is the unobstructed direct path's peak over the noise sigma at
+    ``reference_distance``; ``rate`` ranging rounds per second per mobile node; ``scheme``
+    ``ds`` (double-sided, drift-tolerant) or ``ss`` (single-sided) two-way ranging with
+    ``reply_delay`` and node clocks off by up to ``clock_ppm``; the multipath of each link is
+    an 802.15.4a ``environment`` realization, redrawn every round while the node moves and
+    every ``coherence_time`` s while it stands still.
+    """
+
+    fs: float = Field(7.0e9, gt=0.0)
+    n: int = Field(512, ge=64, le=16384)
+    f_low: float = Field(0.0, ge=0.0)
+    f_high: float = Field(3.5e9, gt=0.0)
+    fc: float = Field(0.0, ge=0.0)
+    snr_db: float = Field(40.0, ge=-20.0, le=120.0)
+    reference_distance: float = Field(1.0, gt=0.0)
+    rate: float = Field(10.0, gt=0.0, le=1000.0)
+    scheme: Literal["ds", "ss"] = "ds"
+    reply_delay: float = Field(1e-3, gt=0.0, le=1.0)
+    clock_ppm: float = Field(20.0, ge=0.0, le=1000.0)
+    environment: Literal["office", "residential"] = "residential"
+    coherence_time: float = Field(1.0, gt=0.0)
+    method: Literal["mpd", "threshold", "adaptive", "peak"] = "adaptive"
+
+
 class PersonModel(_Model):
     """``[[people]]``: a person walking waypoints."""
 
@@ -422,11 +469,18 @@ class Scenario(_Model):
     nodes: list[NodeModel] = Field(default_factory=list)
     robot: RobotModel | None = None
     people: list[PersonModel] = Field(default_factory=list)
+    anchors: list[AnchorModel] = Field(default_factory=list)
+    mobiles: list[MobileModel] = Field(default_factory=list)
+    ranging: RangingModel | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
-        if not self.nodes and self.robot is None:
-            raise _FieldError("nodes", "a scenario needs static [[nodes]] or a [robot]")
+        if not self.nodes and self.robot is None and not self.mobiles:
+            raise _FieldError(
+                "nodes", "a scenario needs static [[nodes]], a [robot] or [[mobiles]]"
+            )
+        if self.mobiles and (len(self.anchors) == 0 or self.ranging is None):
+            raise _FieldError("anchors", "[[mobiles]] need [[anchors]] and a [ranging] table")
         refs = [(f"walls[{i}].material", w.material) for i, w in enumerate(self.walls)]
         refs += [(f"objects[{i}].material", o.material) for i, o in enumerate(self.objects)]
         if self.room is not None:
@@ -446,6 +500,7 @@ class Scenario(_Model):
             ("nodes", [n.id for n in self.nodes]),
             ("people", [p.id for p in self.people]),
             ("objects", [o.id for o in self.objects]),
+            ("anchors", [a.id for a in self.anchors] + [m.id for m in self.mobiles]),
         ):
             dup = sorted({x for x in ids if ids.count(x) > 1}, key=str)
             if dup:

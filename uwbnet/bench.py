@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from uwbnet.bench_localization import bench_localization
+
 
 def _machine() -> dict[str, Any]:
     return {"cores": os.cpu_count()}
@@ -204,13 +206,22 @@ def bench_scale(seed: int = 1) -> dict[str, Any]:
     return {"bench": "scale", **run(seed=seed), **_machine()}
 
 
+def bench_web(seed: int = 0) -> dict[str, Any]:
+    """The live web view at 100 sensors / 30 tracks (``uwbnet/bench_web.py``)."""
+    from uwbnet.bench_web import bench_web as run
+
+    return run(seed)
+
+
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "channel": bench_channel,
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
+    "localization": bench_localization,
     "scale": bench_scale,
     "sim": bench_sim,
+    "web": bench_web,
 }
 
 __all__ = ["BENCHES"]

@@ -72,8 +72,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     from uwbnet.demo import DemoConfig, run_demo
 
-    if args.web is not None:
-        raise CliError("--web: the live web view is not built yet (issue 7); use the terminal view")
     scenario = _load_scenario(args.scenario)
     record = str(_out_path(args.record)) if args.record else None
     console = Console()
@@ -85,6 +83,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
             net=args.net,
             method=args.method,
             record=record,
+            web=args.web,
+            web_host=args.web_host,
         ),
         console,
     )
@@ -143,6 +143,23 @@ def cmd_ranging(args: argparse.Namespace) -> int:
     from node_agent.offline import range_recording
 
     return _run_offline(args, "ranging", range_recording, method=args.method)
+
+
+def cmd_localize(args: argparse.Namespace) -> int:
+    from uwbnet.localization_cmd import localization_table, localize, table_lines
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    if args.table:
+        for line in table_lines(localization_table(src)):
+            print(line)
+        return 0
+    if not args.out:
+        raise CliError("give --out POSES.jsonl (or --table)")
+    out = _out_path(args.out)
+    print(json.dumps(localize(src, out, method=args.method, mitigate=not args.no_mitigation)))
+    return 0
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -244,8 +261,13 @@ def cmd_record(args: argparse.Namespace) -> int:
 
     cfg = load_config(RecordFile, args.config, _zenoh_overrides(args))
     out = _out_path(args.out)
+    walls = None
+    if args.floor_plan:
+        from fusion_center.viewer.state import floor_plan
+
+        walls = floor_plan(_load_scenario(args.floor_plan))
     with stop_on_signals() as stop:
-        result = run_record(cfg, out, stop, args.duration or math.inf)
+        result = run_record(cfg, out, stop, args.duration or math.inf, walls=walls)
     print(json.dumps(result))
     return 0
 
@@ -317,6 +339,32 @@ def cmd_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from uwbnet import plot_cmd
+
+    out = _out_path(args.out)
+    if args.plot_command == "tracks":
+        for p in (args.recording, args.tracks):
+            if not Path(p).is_file():
+                raise CliError(f"no such file: {p}")
+        scenario = _load_scenario(args.scenario) if args.scenario else None
+        result = plot_cmd.plot_tracks(Path(args.recording), Path(args.tracks), out, scenario)
+    elif args.plot_command == "image":
+        if not Path(args.npz).is_file():
+            raise CliError(f"no such file: {args.npz}")
+        result = plot_cmd.plot_image(Path(args.npz), out)
+    elif args.plot_command == "channel":
+        if not Path(args.recording).is_file():
+            raise CliError(f"no such recording: {args.recording}")
+        result = plot_cmd.plot_channel(
+            Path(args.recording), args.node, out, rx=args.rx, max_range=args.max_range
+        )
+    else:
+        result = plot_cmd.plot_topology(_load_scenario(args.scenario), out)
+    print(json.dumps(result))
+    return 0
+
+
 def _rate(value: str) -> float:
     if value in ("inf", "max"):
         return math.inf
@@ -377,6 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--duration", type=_positive, help="seconds to run (default: until Ctrl-C)")
     d.add_argument("--seed", type=int, default=1, help="simulation seed")
     d.add_argument("--web", type=_port, help="serve the live web view on this port")
+    d.add_argument("--web-host", default="127.0.0.1", help="address of the web view (0.0.0.0: all)")
     d.add_argument("--record", help="also record the network to this MCAP file")
     d.add_argument("--net", default="demo", help="network name in the key expressions")
     d.add_argument(
@@ -418,6 +467,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.set_defaults(func=cmd_ranging)
 
+    lo = sub.add_parser("localize", help="localize mobile nodes over a recording (RTToA ranges)")
+    lo.add_argument("recording", help="MCAP recording with ranging detections")
+    lo.add_argument("--out", help="poses JSONL to write")
+    lo.add_argument("--method", choices=["lls", "taylor", "aml"], default="taylor")
+    lo.add_argument("--no-mitigation", action="store_true", help="use every anchor as LOS")
+    lo.add_argument("--table", action="store_true", help="every estimator, with/without mitigation")
+    lo.set_defaults(func=cmd_localize)
     e = sub.add_parser("eval", help="score tracks against a recording's truth")
     e.add_argument("--truth", required=True, help="MCAP recording with truth messages")
     e.add_argument("--tracks", required=True, help="tracks JSONL from 'uwbnet track'")
@@ -442,6 +498,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_zenoh_args(r, config_required=False)
     r.add_argument("--out", required=True, help="output MCAP file")
     r.add_argument("--duration", type=_positive, help="seconds to record (default: until stopped)")
+    r.add_argument(
+        "--floor-plan", metavar="SCENARIO", help="walls of this scenario on the /viz/walls channel"
+    )
     r.set_defaults(func=cmd_record)
 
     rp = sub.add_parser("replay", help="republish a recording's payloads unchanged")
@@ -457,8 +516,30 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--out", required=True, help="output MCAP file")
     rc.set_defaults(func=cmd_recover)
 
+    pl = sub.add_parser("plot", help="figures (PNG/SVG/PDF): tracks, image, channel, topology")
+    psub = pl.add_subparsers(dest="plot_command", required=True, parser_class=_Parser)
+    pt = psub.add_parser("tracks", help="tracks vs the recording's truth")
+    pt.add_argument("recording", help="MCAP recording with truth messages")
+    pt.add_argument("tracks", help="tracks JSONL ('uwbnet track')")
+    pt.add_argument("--scenario", help="draw this scenario's walls")
+    pi = psub.add_parser("image", help="an imaging result (.npz with img, x0, y0, dx, dy)")
+    pi.add_argument("npz", help="image .npz (PROTOCOL.md image fields)")
+    pc = psub.add_parser("channel", help="radargram of a node's impulse responses")
+    pc.add_argument("recording", help="MCAP recording with ir messages")
+    pc.add_argument("--node", required=True, help="node id")
+    pc.add_argument("--rx", help="receiving antenna (default: the first)")
+    pc.add_argument("--max-range", type=_positive, default=30.0, help="bistatic range shown, m")
+    po = psub.add_parser("topology", help="deployment layout of a scenario")
+    po.add_argument("scenario", help="shipped scenario name or TOML path")
+    for sp in (pt, pi, pc, po):
+        sp.add_argument("--out", required=True, help="output figure (.png, .svg or .pdf)")
+        sp.set_defaults(func=cmd_plot)
+
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "scale", "sim"))
+    b.add_argument(
+        "name",
+        choices=("channel", "dsp", "fusion", "fuzz", "localization", "scale", "sim", "web"),
+    )
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
@@ -504,18 +585,22 @@ def build_parser() -> argparse.ArgumentParser:
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that are the user's input, reported as one line."""
     from fusion_center.offline import TrackingError
+    from fusion_center.offline_localization import LocalizationError
     from node_agent.drivers.base import DriverError
     from node_agent.offline import RangingError
     from protocol import ProtocolError
     from sim_nodes.scene import ScenarioError
     from uwbnet.config import ConfigError
+    from uwbnet.plot_cmd import PlotError
 
     return (
+        PlotError,
         CliError,
         ConfigError,
         ProtocolError,
         ScenarioError,
         TrackingError,
+        LocalizationError,
         RangingError,
         DriverError,
         OSError,

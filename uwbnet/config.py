@@ -164,6 +164,17 @@ class SimNodeFile(_Model):
     zenoh: ZenohModel = Field(default_factory=ZenohModel)
 
 
+class WebModel(_Model):
+    """``[web]``: the live web view served by the fusion center (docs/viewing.md)."""
+
+    port: int = Field(8080, ge=0, le=65535, description="TCP port; 0: any free port")
+    host: str = Field("127.0.0.1", description="address to bind; 0.0.0.0 opens it to the LAN")
+    rate: float = Field(15.0, ge=1.0, le=60.0, description="page updates per second")
+    scenario: str | None = Field(
+        default=None, description="draw this scenario's walls as the floor plan (name or path)"
+    )
+
+
 class FusionFile(_Model):
     """``uwbnet fusion --config``: the fusion center (and, in router mode, the router)."""
 
@@ -174,6 +185,7 @@ class FusionFile(_Model):
     tracks_jsonl: str | None = Field(
         default=None, description="also write every fusion update to this JSONL file"
     )
+    web: WebModel | None = Field(default=None, description="serve the live web view")
     zenoh: ZenohModel = Field(default_factory=lambda: ZenohModel(mode="router"))
 
 

@@ -49,6 +49,8 @@ class DemoConfig:
     method: str = "gmphd"
     record: str | None = None
     publish_ir: bool = True
+    web: int | None = None
+    web_host: str = "127.0.0.1"
 
 
 @dataclasses.dataclass(slots=True)
@@ -190,10 +192,27 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
         )
         fusion.start()
         stack.callback(fusion.stop)
+        web_url = ""
+        if config.web is not None:
+            from fusion_center.viewer.live import start_web_view
+            from fusion_center.viewer.server import WebViewConfig
+            from fusion_center.viewer.state import floor_plan
+
+            server, stop_web = start_web_view(
+                fusion,
+                WebViewConfig(port=config.web, host=config.web_host),
+                floor_plan(config.scenario),
+            )
+            stack.callback(stop_web)
+            web_url = server.url
         recorder = None
         if config.record:
             rec_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
-            recorder = NetworkRecorder(rec_session, config.net, config.record)
+            from fusion_center.viewer.state import floor_plan
+
+            recorder = NetworkRecorder(
+                rec_session, config.net, config.record, walls=floor_plan(config.scenario)
+            )
             recorder.start()
             stack.callback(recorder.stop)
         # The nodes run in their own process (spawned: zenoh sessions do not survive fork),
@@ -224,6 +243,7 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             f"uwbnet demo: scenario {config.scenario.name}, {n_nodes} nodes, fusion "
             f"{config.method}, zenoh peers on {hub}"
             + (f", recording {config.record}" if config.record else "")
+            + (f", live view {web_url}" if web_url else "")
         )
         last_scored = None
         live_ctx = (

@@ -272,26 +272,60 @@ def run_fusion(cfg: FusionFile, stop: threading.Event) -> int:
             stack.callback(sub.undeclare)
         fusion.start()
         stack.callback(fusion.stop)
+        if cfg.web is not None:
+            stack.callback(_start_web(fusion, cfg))
         while not stop.wait(0.2):
             if jsonl is not None:
                 _write_tracks(f, inbox)
     return 0
 
 
+def _start_web(fusion: Any, cfg: FusionFile) -> Callable[[], None]:
+    """Start the ``[web]`` live view of ``fusion``; returns its stop function."""
+    from fusion_center.viewer.live import start_web_view
+    from fusion_center.viewer.server import WebViewConfig
+    from fusion_center.viewer.state import floor_plan
+
+    assert cfg.web is not None
+    walls = None
+    if cfg.web.scenario:
+        from sim_nodes.scene import ScenarioError, load_scenario
+
+        try:
+            walls = floor_plan(load_scenario(cfg.web.scenario))
+        except ScenarioError as exc:
+            raise ConfigError(f"web.scenario: {exc}") from None
+    try:
+        server, stop_web = start_web_view(
+            fusion, WebViewConfig(port=cfg.web.port, host=cfg.web.host, rate=cfg.web.rate), walls
+        )
+    except OSError as exc:
+        raise ConfigError(
+            f"web: cannot serve on {cfg.web.host}:{cfg.web.port}: {exc.strerror}"
+        ) from None
+    log.info("live web view on %s", server.url)
+    return stop_web
+
+
 # --- record and replay -----------------------------------------------------------------------
 
 
 def run_record(
-    cfg: RecordFile, out: Path, stop: threading.Event, duration: float
+    cfg: RecordFile,
+    out: Path,
+    stop: threading.Event,
+    duration: float,
+    walls: list[list[float]] | None = None,
 ) -> dict[str, Any]:
-    """Record network ``cfg.net`` into ``out`` until stopped or ``duration`` s have passed."""
+    """Record network ``cfg.net`` into ``out`` until stopped or ``duration`` s have passed
+    (with Foxglove ``/viz`` channels, ``walls`` as their floor plan)."""
     from fusion_center.recorder import NetworkRecorder
 
     session = open_session(lambda: zenoh_config(cfg.zenoh, cfg.net), stop, "record")
     if session is None:
         return {"out": None, "messages": 0}
     with session:
-        recorder = NetworkRecorder(session, cfg.net, out)
+        recorder = NetworkRecorder(session, cfg.net, out, walls=walls)
         recorder.start()
         log.info("recording network %s to %s", cfg.net, out)
         try:

@@ -32,7 +32,7 @@ from .base import (
     constant_velocity_model,
 )
 
-__all__ = ["FusedImageConfig", "FusedImageTracker"]
+__all__ = ["FusedImageConfig", "FusedImageTracker", "add_gaussians"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -159,28 +159,9 @@ class FusedImageTracker(Tracker):
     def _accumulate(self, p: FloatArray, cov: FloatArray) -> None:
         """Eq. (23): ``I ← λ I + Σ_s N(·; p_s, Σ_s)``, on a window around each estimate."""
         cfg = self.config
-        img = self._image
-        assert img is not None
-        img *= cfg.forgetting
-        if p.shape[0] == 0:
-            return
-        res = cfg.resolution
-        sig = np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
-        half = math.ceil(cfg.window_sigmas * float(sig.max()) / res)
-        offs = np.arange(-half, half + 1)
-        ci = np.rint((p[:, 1] - self._y0) / res).astype(np.int64)  # row (y)
-        cj = np.rint((p[:, 0] - self._x0) / res).astype(np.int64)  # column (x)
-        rows = ci[:, None, None] + offs[None, :, None]  # (s, w, 1)
-        cols = cj[:, None, None] + offs[None, None, :]  # (s, 1, w)
-        dx = self._x0 + cols * res - p[:, 0, None, None]
-        dy = self._y0 + rows * res - p[:, 1, None, None]
-        a, b, d = cov[:, 0, 0, None, None], cov[:, 0, 1, None, None], cov[:, 1, 1, None, None]
-        det = a * d - b * b
-        maha = (d * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
-        vals = np.exp(-0.5 * maha) / (2.0 * math.pi * np.sqrt(det))
-        rows, cols = np.broadcast_arrays(rows, cols)
-        ok = (rows >= 0) & (rows < img.shape[0]) & (cols >= 0) & (cols < img.shape[1])
-        np.add.at(img, (rows[ok], cols[ok]), vals[ok])
+        assert self._image is not None
+        self._image *= cfg.forgetting
+        add_gaussians(self._image, self._x0, self._y0, cfg.resolution, p, cov, cfg.window_sigmas)
 
     def _peaks(self) -> FloatArray:
         """Local maxima above threshold, refined by the 3x3 centroid, (n, 2) world x, y."""
@@ -281,3 +262,56 @@ class FusedImageTracker(Tracker):
             )
         )
         return TrackerOutput(t=t, tracks=tracks, n_estimate=float(peaks.shape[0]))
+
+
+def add_gaussians(
+    img: FloatArray,
+    x0: float,
+    y0: float,
+    resolution: float,
+    p: FloatArray,
+    cov: FloatArray,
+    window_sigmas: float = 3.0,
+    weights: FloatArray | None = None,
+) -> None:
+    """Add the sum term of eq. (23) of the CoLOR chapter to ``img`` in place.
+
+    .. math:: I(x, y) \\mathrel{+}= \\sum_s \\mathcal N\\big((x, y);\\ p_s, \\Sigma_s\\big)
+
+    Each Gaussian is evaluated on a square window of ``± window_sigmas`` standard deviations.
+
+    Parameters
+    ----------
+    img : ndarray, float64, shape (ny, nx)
+        Image, 1/m²; pixel ``[i, j]`` is centred at ``(x0 + j*resolution, y0 + i*resolution)``.
+    x0, y0, resolution : float
+        Grid origin and pixel size, m (world frame).
+    p : ndarray, float64, shape (s, 2)
+        Estimates, world x, y, m.
+    cov : ndarray, float64, shape (s, 2, 2)
+        Their covariances, m².
+    window_sigmas : float
+    weights : ndarray, float64, shape (s,), optional
+        Factor on each Gaussian (e.g. the forgetting an estimate has already undergone).
+    """
+    if p.shape[0] == 0:
+        return
+    res = resolution
+    sig = np.sqrt(np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
+    half = math.ceil(window_sigmas * float(sig.max()) / res)
+    offs = np.arange(-half, half + 1)
+    ci = np.rint((p[:, 1] - y0) / res).astype(np.int64)  # row (y)
+    cj = np.rint((p[:, 0] - x0) / res).astype(np.int64)  # column (x)
+    rows = ci[:, None, None] + offs[None, :, None]  # (s, w, 1)
+    cols = cj[:, None, None] + offs[None, None, :]  # (s, 1, w)
+    dx = x0 + cols * res - p[:, 0, None, None]
+    dy = y0 + rows * res - p[:, 1, None, None]
+    a, b, d = cov[:, 0, 0, None, None], cov[:, 0, 1, None, None], cov[:, 1, 1, None, None]
+    det = a * d - b * b
+    maha = (d * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+    vals = np.exp(-0.5 * maha) / (2.0 * math.pi * np.sqrt(det))
+    if weights is not None:
+        vals = vals * weights[:, None, None]
+    rows, cols = np.broadcast_arrays(rows, cols)
+    ok = (rows >= 0) & (rows < img.shape[0]) & (cols >= 0) & (cols < img.shape[1])
+    np.add.at(img, (rows[ok], cols[ok]), vals[ok])

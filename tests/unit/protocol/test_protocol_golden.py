@@ -34,7 +34,8 @@ HEADER = ["v", "kind", "src", "seq", "t"]
 CONTRACT_ORDER = {
     "node_info": ["role", "pose", "mobile", "antennas", "radar"],
     "ir": ["tx", "rx", "slot", "frame", "h", "pose"],
-    "detections": ["tx", "frame", "ranges", "amplitudes", "positions", "cov"],
+    # ``links``: optional, added for node-to-node ranging (docs/localization.md)
+    "detections": ["tx", "frame", "ranges", "amplitudes", "positions", "cov", "links"],
     "status": ["uptime", "acquired", "published", "dropped", "late_slots", "decode_errors", "cpu"],
     "tdma_schedule": ["frame_period", "epoch", "slots"],
     "tracks": ["tracks", "n_estimate"],
@@ -49,6 +50,7 @@ NESTED_ORDER = {
     protocol.Track: ["id", "x", "y", "vx", "vy", "cov", "w"],
     protocol.PoseEstimate: ["pose", "cov", "los"],
     protocol.Target: ["id", "x", "y", "vx", "vy"],
+    protocol.LinkRange: ["range", "std", "los", "snr_db"],
 }
 
 
@@ -271,3 +273,20 @@ def test_golden_truth_values() -> None:
 def test_from_wire_rejects_another_kind() -> None:
     with pytest.raises(protocol.DecodeError, match="expected kind 'ir', got 'status'"):
         Ir.from_wire(golden("status"))
+
+
+def test_detections_links_round_trip_and_reject_a_bad_anchor_id() -> None:
+    link = protocol.LinkRange(range=3.5, std=0.01, los=False, snr_db=12.0)
+    det = Detections(
+        src="tag", seq=1, t=2.0, tx="tag/ant", frame=7, ranges={}, amplitudes={},
+        links={"rx1": link},
+    )  # fmt: skip
+    back = protocol.decode(det.to_wire())
+    assert isinstance(back, Detections) and back.links == {"rx1": link}
+    raw = msgpack.unpackb(det.to_wire())
+    raw["links"] = {"bad id!": raw["links"]["rx1"]}
+    with pytest.raises(protocol.ProtocolError):
+        protocol.decode(msgpack.packb(raw, use_bin_type=True))
+    raw["links"] = {"rx1": {"range": 1.0, "std": 0.1, "los": "yes", "snr_db": 3.0}}
+    with pytest.raises(protocol.ProtocolError):
+        protocol.decode(msgpack.packb(raw, use_bin_type=True))

@@ -574,7 +574,7 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--hosts", type=_count, default=1, help="network namespaces (root if > 1)")
     sc.add_argument("--duration", type=_positive, default=10.0, help="measured seconds")
     sc.add_argument("--workers", type=_count, default=1, help="fusion cell workers (1: one center)")
-    sc.add_argument("--nodes-per-process", type=_count, default=10, help="nodes per process")
+    sc.add_argument("--nodes-per-process", type=_count, default=4, help="nodes per process")
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")
     sc.add_argument("--json", action="store_true", help="print only the JSON line")

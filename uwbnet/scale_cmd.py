@@ -56,7 +56,9 @@ class ScaleConfig:
     hosts: int = 1
     duration: float = 10.0
     workers: int = 1
-    nodes_per_process: int = 10
+    # 4: eight node agents in one process missed slots on the GIL (1.8 % drops at 12 nodes,
+    # none with four per process; docs/capacity.md).
+    nodes_per_process: int = 4
     seed: int = 1
     net: str = "scale"
     out: str | None = None

@@ -140,7 +140,7 @@ def run(
     }
 
 
-def handover(n: int = 40, people: int = 12, seconds: float = 60.0, seed: int = 1) -> dict[str, Any]:
+def handover(n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1) -> dict[str, Any]:
     """One fusion center vs 4 cell workers + gateway on identical detections.
 
     Simulates ``seconds`` of a building of ``n`` nodes (no network: the node DSP's messages go

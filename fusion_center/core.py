@@ -154,7 +154,8 @@ class FusionCore:
         for frame in sorted(f for f in self._pending if f <= upto):
             scans = sorted(self._pending.pop(frame), key=lambda s: s.t)
             t = max(scans[-1].t, self._last_t)
-            out.append(self.tracker.step(t, scans))
+            step = self.tracker.step(t, scans)
+            out.append(dataclasses.replace(step, acquired=tuple(s.t for s in scans)))
             self._last_t = t
             self._done_frame = frame
             self.counters.updates += 1

@@ -16,6 +16,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from fusion_center.core import FusionCore, FusionCoreConfig
@@ -58,6 +59,12 @@ class FusionConfig:
     localization : localization of mobile nodes from their ranging rounds (``poses``).
     imaging : live imaging of the nodes' ``ir`` (off unless ``imaging.rate > 0``), in its own
         thread, published on ``fusion/image``.
+    nodes : fuse only these nodes (subscribing to their keys alone: a fusion worker of one
+        cell, :mod:`fusion_center.gateway`); None: every node of the network.
+    schedule : own the TDMA schedule (publish it, serve its queryable). Exactly one service
+        of a network does; the cell workers of a sharded fusion center do not.
+    track : run the tracker at all (False: a schedule-only service).
+    tracks_key : where ``tracks`` go (default ``uwbnet/{net}/fusion/tracks``).
     """
 
     net: str = "demo"
@@ -68,6 +75,10 @@ class FusionConfig:
     core: FusionCoreConfig = dataclasses.field(default_factory=FusionCoreConfig)
     localization: LocalizerConfig = dataclasses.field(default_factory=LocalizerConfig)
     imaging: LiveImagingConfig = dataclasses.field(default_factory=LiveImagingConfig)
+    nodes: tuple[str, ...] | None = None
+    schedule: bool = True
+    track: bool = True
+    tracks_key: str | None = None
 
 
 @dataclasses.dataclass(slots=True)
@@ -126,23 +137,36 @@ class FusionService:
             return
         net, s = self.config.net, self.session
         put = self._inbox.put
+        cfg = self.config
         self._pub_tracks = s.declare_publisher(
-            keys.fusion_key(net, "tracks"), congestion_control=zenoh.CongestionControl.BLOCK
-        )
-        self._pub_schedule = s.declare_publisher(
-            keys.schedule_key(net), congestion_control=zenoh.CongestionControl.BLOCK
+            cfg.tracks_key or keys.fusion_key(net, "tracks"),
+            congestion_control=zenoh.CongestionControl.BLOCK,
         )
         self._pub_poses = s.declare_publisher(
             keys.fusion_key(net, "poses"), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        self._decl += [self._pub_tracks, self._pub_schedule, self._pub_poses]
-        for leaf in ("det", "info", "status"):
-            self._decl.append(
-                s.declare_subscriber(
-                    keys.all_nodes_key(net, leaf),
-                    lambda sample, leaf=leaf: put((leaf, str(sample.key_expr), _bytes(sample))),
-                )
+        self._decl += [self._pub_tracks, self._pub_poses]
+        if cfg.schedule:
+            self._pub_schedule = s.declare_publisher(
+                keys.schedule_key(net), congestion_control=zenoh.CongestionControl.BLOCK
             )
+            self._decl.append(self._pub_schedule)
+        if cfg.nodes is not None:
+            # A cell worker: its nodes' frames are complete when all of them reported.
+            self.core.expected = frozenset(cfg.nodes)
+        leaves = ("det", "info", "status") if cfg.track else ("info", "status")
+        for leaf in leaves:
+            if cfg.nodes is None:
+                exprs = [keys.all_nodes_key(net, leaf)]
+            else:
+                exprs = [keys.node_key(net, node, leaf) for node in cfg.nodes]
+            for expr in exprs:
+                self._decl.append(
+                    s.declare_subscriber(
+                        expr,
+                        lambda sample, leaf=leaf: put((leaf, str(sample.key_expr), _bytes(sample))),
+                    )
+                )
         self._decl.append(
             s.liveliness().declare_subscriber(
                 keys.all_alive_key(net),
@@ -150,9 +174,11 @@ class FusionService:
                 history=True,
             )
         )
-        self._decl.append(s.declare_queryable(keys.schedule_key(net), self._on_schedule_query))
+        if cfg.schedule:
+            self._decl.append(s.declare_queryable(keys.schedule_key(net), self._on_schedule_query))
         self._decl.append(s.liveliness().declare_token(keys.alive_key(net, self.config.service_id)))
-        self._publish_schedule()
+        if cfg.schedule:
+            self._publish_schedule()
         if self.config.imaging.rate > 0:
             self._start_imaging()
         self._thread = threading.Thread(target=self._run, name="fusion", daemon=True)
@@ -215,6 +241,11 @@ class FusionService:
             query.reply(keys.schedule_key(self.config.net), self._schedule_bytes)
 
     # -- state for viewers -----------------------------------------------------------------
+
+    @property
+    def schedule(self) -> TdmaSchedule | None:
+        """The TDMA schedule this service published last (None before the first)."""
+        return self._schedule
 
     def snapshot(self) -> tuple[TrackerOutput | None, dict[str, NodeHealth]]:
         """The latest tracker output and a copy of the node health table."""
@@ -279,6 +310,8 @@ class FusionService:
             return
         if node is None or node == self.config.service_id:
             return
+        if self.config.nodes is not None and node not in self.config.nodes:
+            return
         alive = kind.endswith("PUT")
         with self._lock:
             self.health.setdefault(node, NodeHealth()).alive = alive
@@ -326,6 +359,8 @@ class FusionService:
 
     def _reschedule(self) -> None:
         """One slot per transmitting antenna of every live node with a known description."""
+        if not self.config.schedule:
+            return
         with self._lock:
             alive = {n for n, h in self.health.items() if h.alive}
         txs = sorted(
@@ -362,16 +397,7 @@ class FusionService:
 
     def _publish(self, outputs: list[TrackerOutput]) -> None:
         for out in outputs:
-            msg = Tracks(
-                src=self.config.service_id,
-                seq=self._next("tracks"),
-                t=out.t,
-                tracks=tuple(
-                    Track(id=tr.id, x=tr.x, y=tr.y, vx=tr.vx, vy=tr.vy, cov=tr.cov.tolist(), w=tr.w)
-                    for tr in out.tracks
-                ),
-                n_estimate=out.n_estimate,
-            )
+            msg = tracks_message(out, src=self.config.service_id, seq=self._next("tracks"))
             self._pub_tracks.put(msg.to_wire())
             with self._lock:
                 self.latest = out
@@ -391,6 +417,30 @@ class FusionService:
         seq = self._seq[stream]
         self._seq[stream] = seq + 1
         return seq
+
+
+def tracks_message(out: TrackerOutput, *, src: str, seq: int) -> Tracks:
+    """The ``tracks`` message of a tracker output, with the optional field ``t_acq``: the
+    acquisition times of the detections the update used (end-to-end latency)."""
+    return Tracks(
+        src=src,
+        seq=seq,
+        t=out.t,
+        tracks=tuple(
+            Track(
+                id=tr.id,
+                x=tr.x,
+                y=tr.y,
+                vx=tr.vx,
+                vy=tr.vy,
+                cov=np.asarray(tr.cov).tolist(),
+                w=tr.w,
+            )
+            for tr in out.tracks
+        ),
+        n_estimate=out.n_estimate,
+        extra={"t_acq": list(out.acquired)},
+    )
 
 
 def _bytes(sample: zenoh.Sample) -> bytes:

@@ -54,6 +54,18 @@ def fusion_key(net: str, leaf: str) -> str:
     return f"{PREFIX}/{_check_id('net', net)}/fusion/{leaf}"
 
 
+def cell_tracks_key(net: str, cell: int) -> str:
+    """``uwbnet/{net}/fusion/cell/{cell}/tracks``: a sharded fusion center's cell worker's
+    tracks (its own labels), merged by the gateway onto ``fusion/tracks``."""
+    if cell < 0:
+        raise KeyExprError(f"cell index must be >= 0, not {cell}")
+    return f"{PREFIX}/{_check_id('net', net)}/fusion/cell/{int(cell)}/tracks"
+
+
+def all_cell_tracks_key(net: str) -> str:
+    return f"{PREFIX}/{_check_id('net', net)}/fusion/cell/*/tracks"
+
+
 def truth_key(net: str) -> str:
     return f"{PREFIX}/{_check_id('net', net)}/sim/truth"
 

@@ -10,6 +10,7 @@ array payloads.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from collections.abc import Mapping
@@ -228,26 +229,37 @@ def encode_fields(obj: Any) -> dict[str, Any]:
     return out
 
 
+@functools.cache
+def _field_plan(cls: type) -> tuple[tuple[tuple[str, Any, bool], ...], bool]:
+    """(name, converter, optional) of the wire fields of ``cls``, and whether it keeps
+    ``extra``: worked out once per class (``dataclasses.fields`` per message was a tenth of
+    the fusion center's time per detection)."""
+    fields = dataclasses.fields(cls)
+    plan = tuple(
+        (f.name, f.metadata["wire"], bool(f.metadata.get("optional")))
+        for f in fields
+        if f.metadata.get("wire") is not None
+    )
+    return plan, any(f.name == "extra" for f in fields)
+
+
 def decode_fields(cls: type[T], m: Any, where: str = "") -> T:
     """Decode a msgpack map into ``cls``: required fields checked, unknown fields kept in extra."""
     if not isinstance(m, Mapping):
         raise DecodeError(f"field {where or 'message'!r}: expected a map, got {_type_name(m)}")
     kwargs: dict[str, Any] = {}
-    known = set()
-    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
-        conv = f.metadata.get("wire")
-        if conv is None:
-            continue
-        known.add(f.name)
-        name = f"{where}.{f.name}" if where else f.name
-        if f.name not in m:
-            if f.metadata.get("optional"):
+    plan, keeps_extra = _field_plan(cls)
+    for fname, conv, optional in plan:
+        name = f"{where}.{fname}" if where else fname
+        if fname not in m:
+            if optional:
                 continue
             raise DecodeError(f"missing required field {name!r}")
-        value = m[f.name]
-        if value is None and f.metadata.get("optional"):
+        value = m[fname]
+        if value is None and optional:
             continue
-        kwargs[f.name] = conv.decode(value, name)
-    if "extra" in {f.name for f in dataclasses.fields(cls)}:  # type: ignore[arg-type]
+        kwargs[fname] = conv.decode(value, name)
+    if keeps_extra:
+        known = {fname for fname, _, _ in plan}
         kwargs["extra"] = {k: v for k, v in m.items() if k not in known}
     return cls(**kwargs)

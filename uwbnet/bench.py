@@ -210,6 +210,17 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
     }
 
 
+def bench_scale(seed: int = 1) -> dict[str, Any]:
+    """CPU per acquisition of simulation, node DSP and fusion (one center / 4 cells) in
+    generated buildings of 12, 48 and 100 nodes (``uwbnet.bench_scale``)."""
+    # As in the processes of ``uwbnet scale``: OpenBLAS threads only add contention for the
+    # simulator's small matrix products (effective only before numpy is first imported).
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from uwbnet.bench_scale import run
+
+    return {"bench": "scale", **run(seed=seed), **_machine()}
+
+
 def bench_web(seed: int = 0) -> dict[str, Any]:
     """The live web view at 100 sensors / 30 tracks (``uwbnet/bench_web.py``)."""
     from uwbnet.bench_web import bench_web as run
@@ -224,6 +235,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "fusion": bench_fusion,
     "localization": bench_localization,
     "imaging": bench_imaging,
+    "scale": bench_scale,
     "sim": bench_sim,
     "web": bench_web,
     "topology": bench_topology,

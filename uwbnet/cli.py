@@ -327,6 +327,42 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _count(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0: {value!r}")
+    return n
+
+
+def cmd_scale(args: argparse.Namespace) -> int:
+    from uwbnet.scale_cmd import ScaleConfig, ScaleError, run_scale, summary_text
+
+    if args.out:
+        _out_path(args.out)
+    try:
+        summary = run_scale(
+            ScaleConfig(
+                nodes=args.nodes,
+                people=args.people,
+                hosts=args.hosts,
+                duration=args.duration,
+                workers=args.workers,
+                nodes_per_process=args.nodes_per_process,
+                seed=args.seed,
+                out=args.out,
+            )
+        )
+    except ScaleError as exc:
+        raise CliError(str(exc)) from None
+    if not args.json:
+        print(summary_text(summary))
+    print(json.dumps(summary))
+    return 0
+
+
 def _zenoh_overrides(args: argparse.Namespace) -> dict[tuple[str, ...], Any]:
     return {
         ("net",): args.net,
@@ -572,6 +608,7 @@ BENCH_NAMES = (
     "fuzz",
     "imaging",
     "localization",
+    "scale",
     "sim",
     "slam",
     "topology",
@@ -836,6 +873,18 @@ def build_parser() -> argparse.ArgumentParser:
     cd.add_argument("--workers", type=int, default=2, choices=range(1, 65), metavar="N")
     cd.add_argument("--stops", type=int, help="only the first N stops")
     cd.set_defaults(func=cmd_channel_dataset)
+
+    sc = sub.add_parser("scale", help="N simulated nodes, M people, fusion: latency, drops, CPU")
+    sc.add_argument("--nodes", type=_count, required=True, help="simulated bat-type nodes")
+    sc.add_argument("--people", type=_count, default=2, help="walking people")
+    sc.add_argument("--hosts", type=_count, default=1, help="network namespaces (root if > 1)")
+    sc.add_argument("--duration", type=_positive, default=10.0, help="measured seconds")
+    sc.add_argument("--workers", type=_count, default=1, help="fusion cell workers (1: one center)")
+    sc.add_argument("--nodes-per-process", type=_count, default=4, help="nodes per process")
+    sc.add_argument("--seed", type=int, default=1)
+    sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")
+    sc.add_argument("--json", action="store_true", help="print only the JSON line")
+    sc.set_defaults(func=cmd_scale)
     return p
 
 

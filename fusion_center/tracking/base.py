@@ -108,11 +108,16 @@ class TrackerOutput:
         Confirmed tracks, sorted by id.
     n_estimate : float
         Expected number of targets (GM-PHD: total mixture weight).
+    acquired : tuple of float
+        Acquisition times (s, network time) of the scans this update used; filled in by the
+        frame assembly (:class:`fusion_center.core.FusionCore`), empty from a bare tracker.
+        End-to-end latency is measured from them.
     """
 
     t: float
     tracks: tuple[TrackEstimate, ...]
     n_estimate: float
+    acquired: tuple[float, ...] = ()
 
     def ids(self) -> npt.NDArray[np.int64]:
         """Track ids, shape (n,)."""

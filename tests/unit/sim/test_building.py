@@ -1,0 +1,42 @@
+"""Generated buildings of ``uwbnet scale`` (sim_nodes.building)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_nodes.building import ROOM_DEPTH, building_length, building_scenario
+from sim_nodes.network import SimNetwork
+
+
+@pytest.mark.parametrize("n", [1, 5, 12, 101])
+def test_building_has_the_requested_nodes_inside_it(n):
+    s = building_scenario(n, 3, seed=2)
+    assert len(s.nodes) == n and len(s.people) == 3
+    xy = np.array([nd.pose[:2] for nd in s.nodes])
+    assert (xy[:, 0] > 0).all() and (xy[:, 0] < building_length(n)).all()
+    assert (xy[:, 1] > 0).all() and (xy[:, 1] < ROOM_DEPTH).all()
+
+
+def test_people_cross_the_middle_of_their_route_soon_and_stay_inside():
+    s = building_scenario(12, 2, seed=1)
+    net = SimNetwork(s, 1)
+    xs: dict[int, list[float]] = {}
+    for t in np.arange(0.0, 12.0, 0.5):
+        for p in net.truth(t):
+            xs.setdefault(p["id"], []).append(p["x"])
+    assert sorted(xs) == [1, 2]
+    for x in xs.values():
+        x = np.array(x)
+        assert ((x > 0) & (x < building_length(12))).all()
+        # Each person passes x = 15 (the centre of the 30 m building) within 12 s.
+        assert ((x - 15.0)[:-1] * (x - 15.0)[1:] < 0).any()
+
+
+def test_people_range_leaves_far_people_out_of_a_nodes_acquisition():
+    s = building_scenario(40, 4, seed=3)
+    full, culled = SimNetwork(s, 1), SimNetwork(s, 1, people_range=20.0)
+    node = s.nodes[0].id  # at x = 2.5: every person of seed 3 is farther than 20 m
+    far = all(abs(p["x"] - 2.5) > 20.0 for p in full.truth(1.0))
+    a, b = full.people_spectrum(node, 1.0), culled.people_spectrum(node, 1.0)
+    assert far and np.abs(a).max() > 0 and np.abs(b).max() == 0

@@ -1,0 +1,201 @@
+"""The processes of ``uwbnet scale``: ``python -m uwbnet.scale_roles ROLE CONFIG_JSON``.
+
+Roles:
+
+* ``hub``: the zenoh router, the TDMA schedule and either the whole fusion center (one
+  worker) or the gateway of the cell workers; it also keeps every ``fusion/tracks`` message
+  with its arrival time and, when stopped, writes them to ``tracks.jsonl`` (``uwbnet track``
+  format plus ``recv``, the arrival time, and ``t_acq``, the acquisition times used).
+* ``nodes``: a group of simulated bat-type nodes with their node agents on one zenoh session.
+* ``worker``: the fusion worker of one cell (fuses the nodes of its cell plus a margin).
+
+Nodes and workers print ``started`` once initialised (before they wait for the router); each
+role prints ``ready`` on stdout once it is up, and stops cleanly on SIGTERM. The scenario is
+rebuilt in every process from ``(nodes, people, seed)``
+(:func:`sim_nodes.building.building_scenario`); people move deterministically in scenario
+time, whose 0 is the schedule's TDMA epoch.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from protocol import ProtocolError, Tracks, keys
+from protocol.transport import session_config
+
+log = logging.getLogger(__name__)
+
+#: People farther than this from a node are left out of its simulation (m): more than one
+#: room away, behind at least one partition, their echoes are far below the noise.
+PEOPLE_RANGE = 20.0
+#: Fusion worker margin: a cell's worker fuses the nodes within this distance of its cell (m).
+CELL_MARGIN = 6.0
+
+
+def building(cfg: dict[str, Any]) -> Any:
+    from sim_nodes.building import building_scenario
+
+    return building_scenario(cfg["nodes"], cfg["people"], cfg["seed"])
+
+
+def cells(cfg: dict[str, Any]) -> Any:
+    from fusion_center.tracking.cells import StripCells
+    from sim_nodes.building import building_length
+
+    return StripCells.even(0.0, building_length(cfg["nodes"]), cfg["workers"])
+
+
+def _session(cfg: dict[str, Any], *, router: bool = False) -> zenoh.Session:
+    if router:
+        return zenoh.open(session_config(mode="router", listen=[cfg["listen"]]))
+    conf = session_config(mode="client", connect=[cfg["connect"]])
+    conf.insert_json5("connect/timeout_ms", "-1")  # wait for the router (DESIGN.md)
+    return zenoh.open(conf)
+
+
+def _ready(what: str) -> None:
+    _say(f"ready {what}")
+
+
+def _say(line: str) -> None:
+    """A line on stdout, which the ``uwbnet scale`` orchestrator reads."""
+    sys.stdout.write(line + "\n")
+    sys.stdout.flush()
+
+
+def run_hub(cfg: dict[str, Any], stop: threading.Event) -> None:
+    """Router, schedule, fusion (one worker) or gateway (several), tracks recorder."""
+    from fusion_center.gateway import CellGateway
+    from fusion_center.service import FusionConfig, FusionService
+
+    received: list[tuple[float, bytes]] = []
+    n_nodes = cfg["nodes"]
+    with _session(cfg, router=True) as session, contextlib.ExitStack() as stack:
+        # Only stamp and keep in the callback: decoding waits until the run is over, so the
+        # measurement takes no CPU from the fusion in this process.
+        sub = session.declare_subscriber(
+            keys.fusion_key(cfg["net"], "tracks"),
+            lambda s: received.append((time.time(), s.payload.to_bytes())),
+        )
+        stack.callback(sub.undeclare)
+        single = cfg["workers"] == 1
+        # Scenario time 0 (the TDMA epoch) is set now that the hub is up, not when it was
+        # launched: the people are where the scenario says when the measurement starts.
+        epoch = time.time() + 0.5
+        fusion = FusionService(session, FusionConfig(net=cfg["net"], track=single), epoch=epoch)
+        fusion.start()
+        stack.callback(fusion.stop)
+        if not single:
+            gateway = CellGateway(session, cfg["net"], cells(cfg))
+            gateway.start()
+            stack.callback(gateway.stop)
+        _ready(f"hub {epoch!r}")
+        announced = False
+        while not stop.wait(0.1):
+            sched = fusion.schedule
+            if not announced and sched is not None and len(sched.slots) >= n_nodes:
+                _say(f"scheduled {len(sched.slots)}")
+                announced = True
+    _write_tracks(Path(cfg["out"]) / "tracks.jsonl", received)
+
+
+def _write_tracks(path: Path, received: list[tuple[float, bytes]]) -> None:
+    partial = path.with_name(path.name + ".partial")
+    with open(partial, "w", encoding="utf-8") as f:
+        for recv, payload in received:
+            try:
+                msg = Tracks.from_wire(payload)
+            except ProtocolError as exc:
+                log.warning("tracks not written: %s", exc)
+                continue
+            line = {
+                "t": msg.t,
+                "recv": recv,
+                "tracks": [
+                    {"id": tr.id, "x": tr.x, "y": tr.y, "vx": tr.vx, "vy": tr.vy}
+                    for tr in msg.tracks
+                ],
+                "n_estimate": msg.n_estimate,
+                "t_acq": msg.extra.get("t_acq", []),
+            }
+            f.write(json.dumps(line, separators=(",", ":")) + "\n")
+    partial.replace(path)
+
+
+def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
+    """Simulated nodes ``cfg["ids"]`` with their node agents (raw ``ir`` off)."""
+    from node_agent.agent import AgentConfig, NodeAgent
+    from sim_nodes.driver import SimulatedDriver
+    from sim_nodes.network import SimNetwork
+    from uwbnet.processes import fetch_epoch
+
+    network = SimNetwork(building(cfg), cfg["seed"], people_range=PEOPLE_RANGE)
+    _say("started")
+    with _session(cfg) as session, contextlib.ExitStack() as stack:
+        epoch = fetch_epoch(session, cfg["net"], stop)
+        if epoch is None:
+            return
+        for node in cfg["ids"]:
+            driver = stack.enter_context(SimulatedDriver(network, node, start=epoch))
+            agent = NodeAgent(
+                session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False)
+            )
+            agent.start()
+            stack.callback(agent.stop)
+        _ready(f"nodes {len(cfg['ids'])}")
+        while not stop.wait(0.2):
+            pass
+
+
+def run_worker(cfg: dict[str, Any], stop: threading.Event) -> None:
+    """The fusion worker of cell ``cfg["cell"]``."""
+    from fusion_center.service import FusionConfig, FusionService
+
+    cell = cfg["cell"]
+    _say("started")
+    with _session(cfg) as session:
+        fusion = FusionService(
+            session,
+            FusionConfig(
+                net=cfg["net"],
+                service_id=f"fusion-cell{cell}",
+                nodes=tuple(cfg["ids"]),
+                schedule=False,
+                tracks_key=keys.cell_tracks_key(cfg["net"], cell),
+            ),
+        )
+        fusion.start()
+        try:
+            _ready(f"worker {cell}")
+            while not stop.wait(0.2):
+                pass
+        finally:
+            fusion.stop()
+
+
+ROLES = {"hub": run_hub, "nodes": run_nodes, "worker": run_worker}
+
+
+def main(argv: list[str]) -> int:
+    from uwbnet.processes import stop_on_signals
+
+    logging.basicConfig(
+        level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    role, cfg = argv[0], json.loads(argv[1])
+    with stop_on_signals() as stop:
+        ROLES[role](cfg, stop)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -156,7 +156,9 @@ def geometric_wavefronts(
     r = np.take_along_axis(r, order, axis=1)
     w = np.take_along_axis(np.where(keep, power, 0.0), order, axis=1)
     # Merge runs of echoes closer than the resolution (cumulative group labels per row).
-    new = np.concatenate([np.ones((len(r), 1), bool), np.diff(r, axis=1) > resolution], axis=1)
+    with np.errstate(invalid="ignore"):  # inf - inf in the padding
+        gaps = np.diff(r, axis=1) > resolution
+    new = np.concatenate([np.ones((len(r), 1), bool), gaps], axis=1)
     new &= np.isfinite(r)
     group = np.cumsum(new, axis=1) - 1
     n_groups = group.max() + 1 if group.size else 0
@@ -165,7 +167,7 @@ def geometric_wavefronts(
     fin = np.isfinite(r).ravel() & (flat < max_fronts)
     num = np.zeros((len(r), max(n_groups, max_fronts)))
     den = np.zeros_like(num)
-    np.add.at(num, (rows[fin], flat[fin]), (r * w).ravel()[fin])
+    np.add.at(num, (rows[fin], flat[fin]), (np.where(np.isfinite(r), r, 0.0) * w).ravel()[fin])
     np.add.at(den, (rows[fin], flat[fin]), w.ravel()[fin])
     out = np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)[:, :max_fronts]
     return out + rng.normal(0.0, range_noise, out.shape)

@@ -47,6 +47,10 @@ def simulate_to_mcap(
     ``ir`` of every node in its slot and one ``truth`` message. Returns the messages written.
     The file appears only when complete.
     """
+    if scenario.circle_scan is not None:
+        from sim_nodes.circle_record import simulate_circle_scan
+
+        return simulate_circle_scan(scenario, out, seed=seed, net=net, progress=progress)
     network = SimNetwork(scenario, seed)
     frame_period = float(scenario.frame_period)
     sched = schedule_message(network, frame_period)

@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from uwbnet.bench_objects import bench_objects
+
 
 def _machine() -> dict[str, Any]:
     return {"cores": os.cpu_count()}
@@ -195,6 +197,7 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
 
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "channel": bench_channel,
+    "objects": bench_objects,
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,

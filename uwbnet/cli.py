@@ -214,6 +214,27 @@ def cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_objects(args: argparse.Namespace) -> int:
+    from uwbnet.objects_cmd import ObjectsError, objects_report
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    try:
+        report = objects_report(src)
+    except ObjectsError as exc:
+        raise CliError(str(exc)) from None
+    if args.json:
+        print(json.dumps(report))
+    else:
+        m = report["material"]
+        print(
+            f"class {report['class']}, {len(report['contour'])} contour points, "
+            f"eps_r {m['permittivity']}, {m['surface']} surface"
+        )
+    return 0
+
+
 def cmd_channel_table(args: argparse.Namespace) -> int:
     from sim_nodes.study import channel_study
 
@@ -426,6 +447,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)
+
+    ob = sub.add_parser("objects", help="contour, material and class of a circular-scan recording")
+    ob.add_argument("recording", help="MCAP of a [circle_scan] scenario (uwbnet sim)")
+    ob.add_argument("--json", action="store_true", help="print the full report as JSON")
+    ob.set_defaults(func=cmd_objects)
 
     c = sub.add_parser("channel", help="hybrid channel model: figures, plots, data sets")
     csub = c.add_subparsers(dest="channel_command", required=True, parser_class=_Parser)

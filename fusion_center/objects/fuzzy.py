@@ -164,7 +164,10 @@ class FuzzyRpmImager:
         pos = np.asarray(positions, float)
         rho = np.asarray(distances, float)
         bs = np.asarray(toward, float)
-        n_pos, m = rho.shape
+        n_pos, m_all = rho.shape
+        # Only as many wavefront columns as some position has (the rest is NaN padding).
+        m = max(int(np.isfinite(rho).sum(axis=1).max(initial=0)), 1)
+        rho = np.sort(rho, axis=1)[:, :m]
         deltas = np.concatenate(
             [-np.arange(1, cfg.neighbours + 1), np.arange(1, cfg.neighbours + 1)]
         )
@@ -194,17 +197,23 @@ class FuzzyRpmImager:
         # Membership of candidate q: weighted sum of the Gaussian memberships of all
         # candidates of the same wavefront, evaluated at q.
         cq = np.where(ok[..., None], cand, 0.0).transpose(0, 2, 1, 3)  # (P, M, D, 2)
-        d2 = np.sum((cq[:, :, :, None, :] - cq[:, :, None, :, :]) ** 2, axis=-1)
         wt = w.transpose(0, 2, 1)  # (P, M, D)
-        mu = np.einsum("pmqr,pmr->pmq", np.exp(-0.5 * d2 / cfg.sigma**2), wt)
-        total = wt.sum(axis=-1)
-        mu = np.where(wt > 0, mu / np.maximum(total, 1e-300)[..., None], -1.0)
-        win = np.argmax(mu, axis=-1)  # (P, M): maximum defuzzification
-        membership = np.take_along_axis(mu, win[..., None], axis=-1)[..., 0]
-        points = np.take_along_axis(cq, win[..., None, None], axis=2)[:, :, 0, :]
-        keep = (membership >= cfg.min_membership) & np.isfinite(rho)
-        points = np.where(keep[..., None], points, np.nan)
-        membership = np.where(keep, membership, 0.0)
+        live = wt.sum(axis=-1) > 0  # wavefronts with any candidate
+        cl, wl = cq[live].astype(np.float32), wt[live].astype(np.float32)  # (L, D, 2), (L, D)
+        dx = cl[:, :, None, 0] - cl[:, None, :, 0]
+        dy = cl[:, :, None, 1] - cl[:, None, :, 1]
+        gauss = np.exp((dx * dx + dy * dy) * np.float32(-0.5 / cfg.sigma**2))
+        mu_l = np.einsum("lqr,lr->lq", gauss, wl) / wl.sum(axis=-1, keepdims=True)
+        mu_l = np.where(wl > 0, mu_l, -1.0)
+        win = np.argmax(mu_l, axis=-1)  # maximum defuzzification
+        membership = np.zeros((n_pos, m_all))
+        points = np.full((n_pos, m_all, 2), np.nan)
+        mem_live = np.take_along_axis(mu_l, win[:, None], axis=-1)[:, 0].astype(float)
+        pts_live = np.take_along_axis(cl, win[:, None, None], axis=1)[:, 0, :].astype(float)
+        keep = mem_live >= cfg.min_membership
+        pi, mi = np.nonzero(live)
+        membership[pi[keep], mi[keep]] = mem_live[keep]
+        points[pi[keep], mi[keep]] = pts_live[keep]
         first = np.isfinite(points[:, 0, 0])
         return FuzzyImage(
             points=points,

@@ -7,8 +7,8 @@ measures size, so a 30 cm and a 45 cm square differ) and described by
 * the **Curvature Scale Space** (CSS) representation: the curvature
   :math:`\\kappa(s;\\sigma) = (x'y'' - y'x'') / (x'^2 + y'^2)^{3/2}` of the contour smoothed by
   Gaussians of several widths ``sigma`` (arc length, m), as a function of arc length ``s``.
-  Two descriptors are compared through their **circular correlation** along ``s`` (the maximum over all
-  shifts: invariant to rotation of the object and to where the track starts). A partial
+  Two descriptors are compared through their **circular correlation** along ``s`` (the best
+  of all shifts: invariant to rotation of the object and to where the track starts). A partial
   track (270 or 180 degrees) gives an open contour, which is correlated against every
   window of the closed reference descriptor of the same length;
 * for full tracks also **moment invariants** (Hu's seven, of the area enclosed by the
@@ -107,7 +107,7 @@ def resample_contour(points: npt.ArrayLike, ds: float, *, closed: bool) -> Float
     seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     total = s[-1]
-    n = max(int(round(total / ds)), 8)
+    n = max(round(total / ds), 8)
     grid = np.linspace(0.0, total, n, endpoint=not closed)
     return np.column_stack([np.interp(grid, s, p[:, 0]), np.interp(grid, s, p[:, 1])])
 
@@ -229,7 +229,10 @@ def describe(points: npt.ArrayLike, config: CssConfig, *, closed: bool) -> Conto
 
 
 def circular_correlation(
-    measured: FloatArray, reference: FloatArray, weight: FloatArray | None = None
+    measured: FloatArray,
+    reference: FloatArray,
+    weight: FloatArray | None = None,
+    spectra: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> float:
     """Smallest relative squared difference of a descriptor (S, Nm) to a closed reference
     (S, Nr) over all circular shifts, computed by circular correlation.
@@ -252,11 +255,19 @@ def circular_correlation(
     wm[:, :nm] = w * measured
     ww = np.zeros_like(reference)
     ww[:, :nm] = w
-    f_ref, f_ref2 = np.fft.rfft(reference, axis=1), np.fft.rfft(reference**2, axis=1)
+    if spectra is None:
+        spectra = reference_spectra(reference)
+    f_ref, f_ref2 = spectra
     corr = np.fft.irfft(np.conj(np.fft.rfft(wm, axis=1)) * f_ref, nr).sum(axis=0)
     energy = np.fft.irfft(np.conj(np.fft.rfft(ww, axis=1)) * f_ref2, nr).sum(axis=0)
     em = np.sum(w * measured**2)
     return float(np.min(em + energy - 2 * corr) / max(em, 1e-300))
+
+
+def reference_spectra(reference: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+    """FFTs of a reference descriptor and of its square along arc length (for
+    :func:`circular_correlation`; computed once per reference)."""
+    return np.fft.rfft(reference, axis=1), np.fft.rfft(reference**2, axis=1)
 
 
 class CssRecognizer:
@@ -277,6 +288,7 @@ class CssRecognizer:
             for i, name in enumerate(self.names)
             for c in references[name]
         ]
+        self._spectra = [reference_spectra(ref.css) for _, ref in self._refs]
 
     def scores(self, points: npt.ArrayLike, *, closed: bool) -> FloatArray:
         """Distance of a contour to every class (lower is better), shape (n_classes,)."""
@@ -284,8 +296,8 @@ class CssRecognizer:
         d = describe(points, cfg, closed=closed)
         w_css, w_fd, w_hu, w_len = cfg.weights
         best = np.full(len(self.names), np.inf)
-        for cls, ref in self._refs:
-            dist = w_css * circular_correlation(d.css, ref.css, d.weight)
+        for (cls, ref), spectra in zip(self._refs, self._spectra, strict=True):
+            dist = w_css * circular_correlation(d.css, ref.css, d.weight, spectra)
             if closed:
                 fd = np.linalg.norm(d.fourier - ref.fourier) / np.linalg.norm(ref.fourier)
                 hu = np.mean(np.abs(d.moments[:4] - ref.moments[:4]))

@@ -443,7 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.set_defaults(func=cmd_recover)
 
     b = sub.add_parser("bench", help="benchmarks; JSON figures on the last line")
-    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "sim"))
+    b.add_argument("name", choices=("channel", "dsp", "fusion", "fuzz", "objects", "sim"))
     b.add_argument("--json", action="store_true", help="print only the JSON line")
     b.add_argument("--seed", type=int, default=0)
     b.set_defaults(func=cmd_bench)

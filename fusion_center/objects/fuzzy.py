@@ -112,6 +112,8 @@ def circle_intersections(
     -------
     ndarray, float64, shape (..., 2)
     """
+    s_i, s_j, toward = (np.asarray(a, float) for a in (s_i, s_j, toward))
+    rho_i, rho_j = np.asarray(rho_i, float), np.asarray(rho_j, float)
     d = s_j - s_i
     c = np.linalg.norm(d, axis=-1)
     e = d / np.maximum(c, 1e-12)[..., None]

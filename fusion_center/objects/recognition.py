@@ -56,10 +56,10 @@ class CssConfig:
     """
 
     ds: float = 0.005
-    scales: tuple[float, ...] = (0.02, 0.04, 0.08)
+    scales: tuple[float, ...] = (0.03, 0.06, 0.12)
     pre_smooth: int = 4
     n_fourier: int = 8
-    end_trim: float = 1.5
+    end_trim: float = 2.5
     weights: tuple[float, float, float, float] = (1.0, 1.0, 0.5, 1.0)
 
 

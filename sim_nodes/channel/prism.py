@@ -191,9 +191,25 @@ def prism_echoes(
     PrismEchoes
         ``E = V faces + V vertices + facets`` echo slots per position.
     """
-    tx = np.asarray(tx, float)
-    rx = np.asarray(rx, float)
-    bs = np.asarray(boresight, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _prism_echoes(
+            target,
+            np.asarray(tx, float),
+            np.asarray(rx, float),
+            np.asarray(boresight, float),
+            beamwidth,
+            wavelength,
+        )
+
+
+def _prism_echoes(
+    target: PrismTarget,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    bs: np.ndarray,
+    beamwidth: float,
+    wavelength: float,
+) -> PrismEchoes:
     v = target.vertices
     nv = len(v)
     a, b = v, np.roll(v, -1, axis=0)
@@ -282,7 +298,8 @@ def prism_echoes(
     gain = horn_gain(point - tx[:, None, :], bs[:, None, :], beamwidth) * horn_gain(
         point - rx[:, None, :], bs[:, None, :], beamwidth
     )
-    s = s * (gain * ok)[..., None, None]
+    # Absent echoes may carry 0/0 from degenerate geometry (a sensor on an edge's line).
+    s = np.where(ok[..., None, None], s * gain[..., None, None], 0.0)
     kind = np.concatenate(
         [
             np.full(nv, FACE),

@@ -30,11 +30,10 @@ C = 299792458.0
 
 def _edge_distance(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """Distance of points (Q, 2) to the boundary of a polygon (V, 2), m."""
-    a, b = vertices, np.roll(vertices, -1, axis=0)
-    e = b - a
-    t = np.einsum("qvk,vk->qv", points[:, None, :] - a, e) / np.sum(e * e, axis=1)
-    foot = a + np.clip(t, 0, 1)[..., None] * e
-    return np.linalg.norm(points[:, None, :] - foot, axis=-1).min(axis=1)
+    from sim_nodes.channel.geometry import segment_point_distance
+
+    dist, _ = segment_point_distance(vertices, np.roll(vertices, -1, axis=0), points)
+    return dist.min(axis=0)
 
 
 def recognition_experiment(trials: int, seed: int, max_offset: float = 0.2) -> dict[str, Any]:

@@ -142,18 +142,6 @@ def _pulse(radar: Any) -> np.ndarray:
     return radar.impulse_response(spec[None])[0].astype(float)
 
 
-def _read_at(h: np.ndarray, delay_samples: np.ndarray) -> np.ndarray:
-    """Band-limited value of each row of h (P, n) at a fractional sample delay (P,)."""
-    n = h.shape[1]
-    spec = np.fft.rfft(h, axis=1)
-    k = np.arange(spec.shape[1])
-    w = np.where(k == 0, 1.0, 2.0)
-    if n % 2 == 0:
-        w[-1] = 1.0
-    phase = np.exp(2j * np.pi * k * delay_samples[:, None] / n)
-    return np.real(np.sum(w * spec * phase, axis=1)) / n
-
-
 def ellipsometry_experiment(seed: int) -> dict[str, Any]:
     """Permittivity errors of eq. (16) with and without the corner correction table."""
     from fusion_center.objects.material import (
@@ -161,6 +149,7 @@ def ellipsometry_experiment(seed: int) -> dict[str, Any]:
         ellipsometry_permittivity,
         incidence_angle,
     )
+    from fusion_center.objects.scan import sample_at
     from sim_nodes.channel.materials import fresnel
     from sim_nodes.channel.prism import FACE, PrismTarget
     from sim_nodes.circle_scan import CircleTrack, scan_echoes, scan_impulse_responses
@@ -187,7 +176,7 @@ def ellipsometry_experiment(seed: int) -> dict[str, Any]:
         ok = np.isfinite(length)
         h = scan_impulse_responses(echoes, radar, ("vv", "hh"), rng).astype(float)
         d = (np.nan_to_num(length) / C - radar.config.t0) * radar.config.fs
-        a_vv, a_hh = _read_at(h[:, 0], d), _read_at(h[:, 1], d)
+        a_vv, a_hh = sample_at(h[:, 0], d), sample_at(h[:, 1], d)
         point = echoes.point[:, top]
         theta = incidence_angle(tx, rx, point, normal)
         corner = half_len - np.abs(point[:, 0])

@@ -17,7 +17,7 @@ import numpy as np
 from fusion_center.objects.alphabet import alphabet, place
 from fusion_center.objects.fuzzy import FuzzyRpmImager, monostatic_distance
 from fusion_center.objects.recognition import CssRecognizer
-from fusion_center.objects.scan import ScanData, process_scan
+from fusion_center.objects.scan import ScanData, process_scan, track_centre
 from protocol import Ir, NodeInfo
 from protocol.errors import ProtocolError
 from protocol.recording import read_recording
@@ -127,8 +127,11 @@ def load_scan(path: str | os.PathLike[str]) -> ScanData:
 def objects_report(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The JSON report of ``uwbnet objects``: contour, material estimate, recognized class."""
     scan = load_scan(path)
-    result = process_scan(scan)
-    centre = scan.poses[:, :2].mean(axis=0)
+    try:
+        result = process_scan(scan)
+    except ValueError as exc:
+        raise ObjectsError(f"{path}: {exc}") from None
+    centre = track_centre(scan.poses)
     radius = float(np.median(np.linalg.norm(scan.poses[:, :2] - centre, axis=1)))
     baseline = float(np.median(np.linalg.norm(scan.tx - scan.rx, axis=1)))
     if len(result.contour) < 8:

@@ -94,3 +94,15 @@ def test_face_echo_geometry_at_normal_incidence() -> None:
     lengths = echoes.length[0, face]
     assert np.nanmin(lengths) == pytest.approx(1.7)
     assert np.isfinite(lengths).sum() == 1  # only the facing side is lit
+
+
+def test_track_centre_of_a_partial_circle_and_band_limited_sampling() -> None:
+    from fusion_center.objects.scan import sample_at, track_centre
+
+    track = CircleTrack(centre=(0.3, -0.2), radius=0.7, start=0.7, span=np.deg2rad(100.0))
+    assert np.allclose(track_centre(track.poses()), [0.3, -0.2], atol=1e-9)
+    n = 64
+    t = np.arange(n)
+    tone = np.cos(2 * np.pi * 3 * t / n)
+    got = sample_at(np.stack([tone, tone]), np.array([10.25, 40.5]))
+    assert np.allclose(got, np.cos(2 * np.pi * 3 * np.array([10.25, 40.5]) / n), atol=1e-9)

@@ -7,6 +7,8 @@ measures size, so a 30 cm and a 45 cm square differ) and described by
 * the **Curvature Scale Space** (CSS) representation: the curvature
   :math:`\\kappa(s;\\sigma) = (x'y'' - y'x'') / (x'^2 + y'^2)^{3/2}` of the contour smoothed by
   Gaussians of several widths ``sigma`` (arc length, m), as a function of arc length ``s``.
+  (The classic CSS image keeps only the zero crossings of ``kappa`` across scales; a convex
+  polygon has none, every corner turning the same way, so the values are kept here.)
   Two descriptors are compared through their **circular correlation** along ``s`` (the best
   of all shifts: invariant to rotation of the object and to where the track starts). A partial
   track (270 or 180 degrees) gives an open contour, which is correlated against every

@@ -65,14 +65,36 @@ class ScanData:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ScanResult:
-    """Output of :func:`process_scan`."""
+    """Output of :func:`process_scan`.
 
-    ranges: FloatArray  # (P, M) bistatic wavefront ranges, m
-    points: FloatArray  # (P, M, 2) image points, m
-    contour: FloatArray  # (Q, 2)
+    Attributes
+    ----------
+    ranges : ndarray, float64, shape (P, M)
+        Bistatic wavefront ranges per position, ascending, NaN-padded, m.
+    points : ndarray, float64, shape (P, M, 2)
+        Fuzzy image point of each wavefront, world x, y, m.
+    contour : ndarray, float64, shape (Q, 2)
+        The 2-D contour (first wavefront of each position, track order).
+    closed : bool
+        The track was a full circle.
+    depolarization : float
+        Median ``P_VH / P_VV`` around the first wavefront.
+    corner_points : ndarray, float64, shape (K, 2)
+        Contour points where the 45-degree cross-polar channel is strong (corners).
+    permittivity, emissivity : float
+        Eq. (16) estimate over the face positions (NaN: no usable face).
+    metal_like : bool
+        ``|1 + rho|`` below 1 %: both polarizations reflect alike (a conductor).
+    n_face_positions : int
+        Positions used by the ellipsometry.
+    """
+
+    ranges: FloatArray
+    points: FloatArray
+    contour: FloatArray
     closed: bool
     depolarization: float
-    corner_points: FloatArray  # (K, 2)
+    corner_points: FloatArray
     permittivity: float
     emissivity: float
     metal_like: bool

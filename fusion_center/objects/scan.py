@@ -194,13 +194,26 @@ def process_scan(
         return np.take_along_axis(scan.h[ch].astype(float), win_idx, axis=1)
 
     depol = depolarization_ratio(take("vv"), take("vh"))[has]
-    co45 = np.abs(take("pp")).max(axis=1)
-    cross45 = np.abs(take("pm")).max(axis=1)
-    corner_pos = has & (cross45 > 0.5 * co45) & np.isfinite(img.points[:, 0, 0])
+    # Corners: wavefronts (any, not only the first: a dihedral lies behind the faces) whose
+    # 45-degree cross-polar echo is strong against the co-polar one. A plate gives none, a
+    # dihedral only cross-polar, a wedge about a third of its co-polar amplitude.
+    fronts = np.isfinite(ranges)
+    k_all = np.where(fronts, np.round((ranges / C - scan.t0) * scan.fs), 0).astype(int)
+    w_all = np.clip(k_all[..., None] + np.arange(-2, 3), 0, n - 1).reshape(n_pos, -1)
+
+    def peak(ch: str) -> FloatArray:
+        v = np.take_along_axis(scan.h[ch].astype(float), w_all, axis=1)
+        return np.abs(v).reshape(n_pos, -1, 5).max(axis=-1)
+
+    co45, cross45 = peak("pp"), peak("pm")
+    # Quasi-monostatic only: at oblique bistatic incidence a plate's cross-polar share
+    # ((Gamma_TE + Gamma_TM) / 2) grows too. Weak echoes (DCM residue) are left out.
+    significant = cross45 > 0.1 * np.max(np.where(fronts, cross45, 0.0), initial=0.0)
+    corner_mask = fronts & significant & (cross45 > 0.25 * co45) & np.isfinite(img.points[..., 0])
     # Ellipsometry on faces: the contour is locally straight around the image point.
     d_first = np.where(has, (first / C - scan.t0) * scan.fs, 0.0)
     a_vv, a_hh = sample_at(vv, d_first), sample_at(hh, d_first)
-    corners = img.points[corner_pos, 0, :]
+    corners = img.points[corner_mask]
     pts = img.points[:, 0, :]
     eps_est, face_n = np.nan, 0
     ok = np.isfinite(pts[:, 0])

@@ -55,6 +55,10 @@ def simulate_to_mcap(
         return simulate_ranging_to_mcap(
             scenario, out, duration=duration, seed=seed, net=net, progress=progress
         )
+    if scenario.circle_scan is not None:
+        from sim_nodes.circle_record import simulate_circle_scan
+
+        return simulate_circle_scan(scenario, out, seed=seed, net=net, progress=progress)
     network = SimNetwork(scenario, seed)
     frame_period = float(scenario.frame_period)
     sched = schedule_message(network, frame_period)

@@ -429,6 +429,47 @@ class RangingModel(_Model):
     method: Literal["mpd", "threshold", "adaptive", "peak"] = "adaptive"
 
 
+class CircleScanModel(_Model):
+    """``[circle_scan]``: a bat-type sensor circling one object (Section 7; a data-set kind).
+
+    The object is a vertical prism over ``target`` (a closed polygon, convex or not, m) of
+    ``material`` with surface ``roughness`` (0 smooth). The sensor stops every ``step`` rad on
+    a circle (``span`` < 2 pi: a partial circle from ``start``) of ``radius`` around
+    ``centre``, boresight to the centre, with V, H and 45-degree polarized transmit and
+    receive antennas ``baseline`` apart (see :mod:`sim_nodes.circle_scan`).
+    """
+
+    id: str = Field("scan", pattern=r"^[A-Za-z0-9_-]+$")
+    target: Annotated[list[Point2], Field(min_length=4)]
+    material: str
+    roughness: float = Field(0.0, ge=0.0, le=1.0)
+    centre: Point2 = Field(default_factory=lambda: [0.0, 0.0])
+    radius: float = Field(1.0, gt=0.05, le=20.0)
+    start: float = Field(0.0, ge=-2 * math.pi, le=2 * math.pi)
+    span: float = Field(2 * math.pi, gt=0.0, le=2 * math.pi)
+    step: float = Field(math.pi / 180, gt=0.0, le=math.pi / 4)
+    baseline: float = Field(0.1, gt=0.0, le=2.0)
+    height: float = Field(1.0, gt=0.0, le=10.0)
+    beamwidth: float = Field(math.radians(70.0), gt=0.0, le=2 * math.pi)
+
+    @field_validator("target")
+    @classmethod
+    def _simple(cls, v: list[list[float]]) -> list[list[float]]:
+        _closed_polygon(v, "target")
+        if _self_intersects(v):
+            raise ValueError("target polygon intersects itself")
+        return v
+
+    @model_validator(mode="after")
+    def _outside(self) -> CircleScanModel:
+        far = max(math.dist(self.centre, p) for p in self.target)
+        if far >= self.radius - 0.05:
+            raise _FieldError(
+                "radius", f"the track must clear the target by 5 cm (reach {far:.3g} m)"
+            )
+        return self
+
+
 class PersonModel(_Model):
     """``[[people]]``: a person walking waypoints."""
 
@@ -468,6 +509,7 @@ class Scenario(_Model):
     objects: list[ObjectModel] = Field(default_factory=list)
     nodes: list[NodeModel] = Field(default_factory=list)
     robot: RobotModel | None = None
+    circle_scan: CircleScanModel | None = None
     people: list[PersonModel] = Field(default_factory=list)
     anchors: list[AnchorModel] = Field(default_factory=list)
     mobiles: list[MobileModel] = Field(default_factory=list)
@@ -475,13 +517,16 @@ class Scenario(_Model):
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
-        if not self.nodes and self.robot is None and not self.mobiles:
+        if not self.nodes and self.robot is None and not self.mobiles and self.circle_scan is None:
             raise _FieldError(
-                "nodes", "a scenario needs static [[nodes]], a [robot] or [[mobiles]]"
+                "nodes",
+                "a scenario needs static [[nodes]], a [robot], [[mobiles]] or a [circle_scan]",
             )
         if self.mobiles and (len(self.anchors) == 0 or self.ranging is None):
             raise _FieldError("anchors", "[[mobiles]] need [[anchors]] and a [ranging] table")
         refs = [(f"walls[{i}].material", w.material) for i, w in enumerate(self.walls)]
+        if self.circle_scan is not None:
+            refs.append(("circle_scan.material", self.circle_scan.material))
         refs += [(f"objects[{i}].material", o.material) for i, o in enumerate(self.objects)]
         if self.room is not None:
             refs += [

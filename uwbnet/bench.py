@@ -13,6 +13,7 @@ from typing import Any
 
 from uwbnet.bench_imaging import bench_imaging
 from uwbnet.bench_localization import bench_localization
+from uwbnet.bench_objects import bench_objects
 
 
 def _machine() -> dict[str, Any]:
@@ -230,6 +231,7 @@ def bench_web(seed: int = 0) -> dict[str, Any]:
 
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "channel": bench_channel,
+    "objects": bench_objects,
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,

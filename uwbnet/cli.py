@@ -418,6 +418,27 @@ def cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_objects(args: argparse.Namespace) -> int:
+    from uwbnet.objects_cmd import ObjectsError, objects_report
+
+    src = Path(args.recording)
+    if not src.is_file():
+        raise CliError(f"no such recording: {src}")
+    try:
+        report = objects_report(src)
+    except ObjectsError as exc:
+        raise CliError(str(exc)) from None
+    if args.json:
+        print(json.dumps(report))
+    else:
+        m = report["material"]
+        print(
+            f"class {report['class']}, {len(report['contour'])} contour points, "
+            f"eps_r {m['permittivity']}, {m['surface']} surface"
+        )
+    return 0
+
+
 def cmd_channel_table(args: argparse.Namespace) -> int:
     from sim_nodes.study import channel_study
 
@@ -608,6 +629,7 @@ BENCH_NAMES = (
     "fuzz",
     "imaging",
     "localization",
+    "objects",
     "scale",
     "sim",
     "slam",
@@ -849,6 +871,10 @@ def build_parser() -> argparse.ArgumentParser:
     tp.add_argument("--spacing", type=_positive, default=1.0, help="optimize: site spacing, m")
     tp.add_argument("--add", action="store_true", help="optimize: add to the scenario's nodes")
     tp.set_defaults(func=cmd_topology)
+    ob = sub.add_parser("objects", help="contour, material and class of a circular-scan recording")
+    ob.add_argument("recording", help="MCAP of a [circle_scan] scenario (uwbnet sim)")
+    ob.add_argument("--json", action="store_true", help="print the full report as JSON")
+    ob.set_defaults(func=cmd_objects)
 
     c = sub.add_parser("channel", help="hybrid channel model: figures, plots, data sets")
     csub = c.add_subparsers(dest="channel_command", required=True, parser_class=_Parser)

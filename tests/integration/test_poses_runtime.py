@@ -62,7 +62,7 @@ def test_fusion_publishes_a_pose_per_ranging_round_near_the_truth(hub_endpoint):
                 if not key.endswith("/truth"):
                     pub_s.put(key, msg.to_wire(), congestion_control=zenoh.CongestionControl.BLOCK)
             poses = []
-            deadline = time.monotonic() + 15.0
+            deadline = time.monotonic() + 30.0
             while len(poses) < rounds and time.monotonic() < deadline:
                 item = got.get(timeout=0.2)
                 if item is not None:
@@ -86,6 +86,8 @@ def test_fusion_publishes_a_pose_per_ranging_round_near_the_truth(hub_endpoint):
     # docs/localization.md; the rates are measured by uwbnet localize --table)
     late = [p.poses["tag"].los for p in poses if p.t >= 3.0]
     for anchor, los in (("rx1", True), ("rx2", True), ("rx3", False)):
-        assert np.mean([d[anchor] == los for d in late]) > 0.6, anchor
+        share = np.mean([d[anchor] == los for d in late]) if late else 0.0
+        assert share > 0.6, f"{anchor}: {share:.2f} of {len(late)} late poses, {len(poses)} in all"
     # decimetre NLOS biases, a few seconds of track: the pose stays within half a metre
-    assert float(np.sqrt(np.mean(np.square(errors)))) < 0.5
+    rmse = float(np.sqrt(np.mean(np.square(errors))))
+    assert rmse < 0.5, f"RMSE {rmse:.3f} m over {len(errors)} poses"

@@ -198,6 +198,8 @@ class FusionService:
                 h.latency_ms = (self.clock() - msg.t) * 1e3
             if msg.links is not None:
                 self._publish_pose(self.pose_core.add_ranging(msg))
+                # anchors ranged before their description arrived: ask their queryables
+                self._want_info |= self.pose_core.unknown_anchors
             else:
                 self._publish(self.core.add_detections(msg))
         elif leaf == "info" and isinstance(msg, NodeInfo):

@@ -46,6 +46,8 @@ class PoseCore:
         self.heights: dict[str, float] = {}
         self.localizers: dict[str, RangingLocalizer] = {}
         self.counters = PoseCounters()
+        #: Anchors named in links whose ``node_info`` has not arrived (the service asks them).
+        self.unknown_anchors: set[str] = set()
         self._last_t: dict[str, float] = {}
 
     def add_node(self, info: NodeInfo) -> None:
@@ -53,6 +55,7 @@ class PoseCore:
         if info.mobile:
             self.heights[info.src] = float(info.pose[2])
             return
+        self.unknown_anchors.discard(info.src)
         pos = (float(info.pose[0]), float(info.pose[1]), float(info.pose[2]))
         if self.anchors.get(info.src) != pos:
             self.anchors[info.src] = pos
@@ -69,6 +72,7 @@ class PoseCore:
         self._last_t[det.src] = det.t
         known = {a: (lk.range, lk.std) for a, lk in links.items() if a in self.anchors}
         self.counters.unknown_anchor += len(links) - len(known)
+        self.unknown_anchors |= set(links) - set(self.anchors)
         if not known:
             self.counters.no_fix += 1
             return None

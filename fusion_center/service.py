@@ -291,6 +291,8 @@ class FusionService:
                 h.latency_ms = (self.clock() - msg.t) * 1e3
             if msg.links is not None:
                 self._publish_pose(self.pose_core.add_ranging(msg))
+                # anchors ranged before their description arrived: ask their queryables
+                self._want_info |= self.pose_core.unknown_anchors
             else:
                 if msg.positions is not None and msg.positions.shape[0]:
                     self.recent_estimates.append((msg.t, msg.positions, msg.cov))

@@ -110,14 +110,20 @@ class RangingLocalizer:
         self._yaw = 0.0
 
     def los_decisions(self) -> dict[str, bool]:
-        """The current eq. (6) decision of every anchor with a history (True: LOS)."""
-        out = {}
+        """The current eq. (6) decision of every anchor with a history (True: LOS).
+
+        Anchors ranged at the same times (the usual case: every anchor in every round) are
+        tested together in one least-squares solve."""
+        if not self.config.mitigate:
+            return dict.fromkeys(self._history, True)
+        groups: dict[tuple[float, ...], list[str]] = {}
         for aid, hist in self._history.items():
-            if not self.config.mitigate:
-                out[aid] = True
-                continue
-            arr = np.array(hist)
-            out[aid] = not self.config.test.is_nlos(arr[:, 0], arr[:, 1])
+            groups.setdefault(tuple(t for t, _ in hist), []).append(aid)
+        out = {}
+        for times, ids in groups.items():
+            r = np.array([[r for _, r in self._history[a]] for a in ids]).T
+            nlos = self.config.test.decide(np.array(times), r)
+            out.update(zip(ids, (not v for v in nlos), strict=True))
         return out
 
     def _outliers(

@@ -17,6 +17,7 @@ test runs per anchor, so it says which anchors are NLOS, not only that one exist
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,14 +43,14 @@ class MseNlosTest:
     min_samples : int
         Below this many ranges the anchor is not tested (reported LOS).
     clip : float
-        Residuals are clipped at this many ``los_std`` (0: the chapter's plain MSE).
+        Residuals are clipped at this many ``los_std`` (0, the default: the chapter's MSE).
     """
 
     los_std: float = 0.03
     false_alarm: float = 0.01
     order: int = 2
     min_samples: int = 8
-    clip: float = 3.0
+    clip: float = 0.0
 
     def statistic(self, t: FloatArray, ranges: FloatArray) -> tuple[float, int]:
         """``(N MSE / sigma_LOS^2, degrees of freedom)`` of one anchor's window.
@@ -81,8 +82,36 @@ class MseNlosTest:
     def is_nlos(self, t: FloatArray, ranges: FloatArray) -> bool:
         """Eq. (6) decision for one anchor's window of ranges."""
         stat, dof = self.statistic(t, ranges)
-        return dof >= 1 and stat > float(chi2.ppf(1.0 - self.false_alarm, dof))
+        return dof >= 1 and stat > self.threshold(dof)
+
+    def decide(self, t: FloatArray, ranges: FloatArray) -> npt.NDArray[np.bool_]:
+        """Eq. (6) decisions of several anchors ranged at the same times (True: NLOS).
+
+        Parameters
+        ----------
+        t : ndarray, shape (N,)
+        ranges : ndarray, shape (N, k)
+            One column per anchor, all finite.
+        """
+        t = np.asarray(t, float)
+        r = np.asarray(ranges, float).reshape(t.size, -1)
+        order = min(self.order, max(t.size - 2, 0))
+        dof = t.size - order - 1
+        if t.size < self.min_samples or dof < 1:
+            return np.zeros(r.shape[1], bool)
+        tc = t - t.mean()
+        basis = np.vander(tc / max(float(np.ptp(tc)), 1e-9), order + 1)
+        coef, *_ = np.linalg.lstsq(basis, r, rcond=None)
+        res = (r - basis @ coef) / self.los_std
+        if self.clip > 0:
+            res = np.clip(res, -self.clip, self.clip)
+        return np.sum(res**2, axis=0) > self.threshold(dof)
 
     def threshold(self, dof: int) -> float:
         """The test's threshold on ``N MSE / sigma_LOS^2`` for ``dof`` degrees of freedom."""
-        return float(chi2.ppf(1.0 - self.false_alarm, dof))
+        return _chi2_quantile(1.0 - self.false_alarm, dof)
+
+
+@functools.lru_cache(maxsize=1024)
+def _chi2_quantile(p: float, dof: int) -> float:
+    return float(chi2.ppf(p, dof))

@@ -58,11 +58,22 @@ def test_fusion_publishes_a_pose_per_ranging_round_near_the_truth(hub_endpoint):
                     ready.wait(0.05)
             for p in probes:
                 p.undeclare()
+            # node_info first, as nodes publish it on start; detections once the fusion center
+            # holds every description (different keys' samples may overtake each other)
+            block = zenoh.CongestionControl.BLOCK
             for key, msg in msgs:
-                if not key.endswith("/truth"):
-                    pub_s.put(key, msg.to_wire(), congestion_control=zenoh.CongestionControl.BLOCK)
+                if key.endswith("/info"):
+                    pub_s.put(key, msg.to_wire(), congestion_control=block)
+            deadline, pause = time.monotonic() + 10.0, threading.Event()
+            while len(fusion.pose_core.anchors) < 4 or "tag" not in fusion.pose_core.heights:
+                if time.monotonic() > deadline:
+                    raise AssertionError(f"anchors known: {sorted(fusion.pose_core.anchors)}")
+                pause.wait(0.05)
+            for key, msg in msgs:
+                if key.endswith("/det"):
+                    pub_s.put(key, msg.to_wire(), congestion_control=block)
             poses = []
-            deadline = time.monotonic() + 15.0
+            deadline = time.monotonic() + 30.0
             while len(poses) < rounds and time.monotonic() < deadline:
                 item = got.get(timeout=0.2)
                 if item is not None:
@@ -71,8 +82,11 @@ def test_fusion_publishes_a_pose_per_ranging_round_near_the_truth(hub_endpoint):
         finally:
             fusion.stop()
     assert fusion.decode_errors == 0
-    # one poses message per ranging round (the first rounds may race the anchors' node_info)
-    assert len(poses) >= rounds - 3, f"{len(poses)} poses for {rounds} rounds"
+    # one poses message per ranging round
+    assert len(poses) == rounds, (
+        f"{len(poses)} poses for {rounds} rounds; {fusion.pose_core.counters}, "
+        f"anchors {sorted(fusion.pose_core.anchors)}, health {sorted(fusion.health)}"
+    )
     assert all(isinstance(p, Poses) and set(p.poses) == {"tag"} for p in poses)
     errors = [
         np.hypot(*(np.array(p.poses["tag"].pose[:2]) - np.array(truth[p.t][:2])))
@@ -86,6 +100,8 @@ def test_fusion_publishes_a_pose_per_ranging_round_near_the_truth(hub_endpoint):
     # docs/localization.md; the rates are measured by uwbnet localize --table)
     late = [p.poses["tag"].los for p in poses if p.t >= 3.0]
     for anchor, los in (("rx1", True), ("rx2", True), ("rx3", False)):
-        assert np.mean([d[anchor] == los for d in late]) > 0.6, anchor
+        share = np.mean([d[anchor] == los for d in late]) if late else 0.0
+        assert share > 0.6, f"{anchor}: {share:.2f} of {len(late)} late poses, {len(poses)} in all"
     # decimetre NLOS biases, a few seconds of track: the pose stays within half a metre
-    assert float(np.sqrt(np.mean(np.square(errors)))) < 0.5
+    rmse = float(np.sqrt(np.mean(np.square(errors))))
+    assert rmse < 0.5, f"RMSE {rmse:.3f} m over {len(errors)} poses"

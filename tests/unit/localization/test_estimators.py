@@ -131,3 +131,11 @@ def test_localization_core_imports_nothing_impure():
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 imported.add(node.module.split(".")[0])
         assert not imported & forbidden, f"{path.name} imports {sorted(imported & forbidden)}"
+
+
+def test_clipped_mse_ignores_one_outlier_the_plain_one_does_not(rng):
+    t = np.arange(30) * 0.1
+    r = 4.0 + 0.3 * t + rng.normal(0, 0.005, t.size)
+    r[12] += 0.3  # one multipath outlier of a LOS link: 10 sigma
+    assert MseNlosTest(los_std=0.03).is_nlos(t, r)
+    assert not MseNlosTest(los_std=0.03, clip=3.0).is_nlos(t, r)

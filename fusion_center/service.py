@@ -29,6 +29,7 @@ from protocol import (
     Detections,
     Ir,
     NodeInfo,
+    Poses,
     ProtocolError,
     Slot,
     Status,
@@ -209,11 +210,16 @@ class FusionService:
         self._decl.append(
             s.declare_subscriber(keys.all_nodes_key(net, "ir"), lambda smp: put(_bytes(smp)))
         )
+        # Mobile nodes whose ir carry no pose are placed by the latest ``poses``: this
+        # service's own localization or another service's (the mapping of a robot).
+        self._decl.append(
+            s.declare_subscriber(keys.fusion_key(net, "poses"), lambda smp: put(_bytes(smp)))
+        )
         self._img_thread = threading.Thread(target=self._run_imaging, name="imaging", daemon=True)
         self._img_thread.start()
 
     def _run_imaging(self) -> None:
-        """Decode ``ir`` as it arrives, migrate and publish at ``imaging.rate``."""
+        """Decode ``ir`` and ``poses`` as they arrive, migrate and publish at ``imaging.rate``."""
         assert self.imaging is not None
         period = 1.0 / self.config.imaging.rate
         next_t = time.monotonic() + period
@@ -222,13 +228,17 @@ class FusionService:
             if payload is not None:
                 try:
                     msg = decode(payload)
-                    if not isinstance(msg, Ir):
-                        raise ProtocolError(f"kind {msg.KIND!r} on an ir key")
-                    with self._img_lock:
-                        self.imaging.add_ir(msg)
+                    if isinstance(msg, Ir):
+                        with self._img_lock:
+                            self.imaging.add_ir(msg)
+                    elif isinstance(msg, Poses):
+                        with self._img_lock:
+                            self.imaging.add_poses(msg)
+                    else:
+                        raise ProtocolError(f"kind {msg.KIND!r} on an ir or poses key")
                 except ProtocolError as exc:
                     self.decode_errors += 1
-                    log.warning("rejected ir: %s", exc)
+                    log.warning("rejected imaging input: %s", exc)
             if time.monotonic() >= next_t:
                 next_t = time.monotonic() + period
                 with self._img_lock:

@@ -39,7 +39,7 @@ def _edge_distance(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
 def recognition_experiment(trials: int, seed: int, max_offset: float = 0.2) -> dict[str, Any]:
     """Accuracies, confusion matrices and contour errors of the recognition experiment."""
     from fusion_center.objects.alphabet import alphabet, place
-    from fusion_center.objects.fuzzy import FuzzyRpmImager
+    from fusion_center.objects.fuzzy import FuzzyRpmImager, monostatic_distance
     from fusion_center.objects.recognition import CssRecognizer
     from sim_nodes.channel.prism import PrismTarget
     from sim_nodes.circle_scan import CircleTrack, geometric_wavefronts, scan_echoes
@@ -60,15 +60,13 @@ def recognition_experiment(trials: int, seed: int, max_offset: float = 0.2) -> d
             verts = place(shapes[name], rot, (r * np.cos(ph), r * np.sin(ph)))
             full = CircleTrack()
             echoes = scan_echoes(PrismTarget(vertices=verts), full, np.deg2rad(70.0))
-            ranges = geometric_wavefronts(echoes, rng)
-            pos, (tx, rx, toward) = full.positions(), full.antennas()
+            rho = monostatic_distance(geometric_wavefronts(echoes, rng), full.baseline)
+            pos, (_, _, toward) = full.positions(), full.antennas()
             start = int(rng.integers(0, 360))
             for key, span in spans.items():
                 sel = np.mod(start + np.arange(span if span < 360 else 360), 360)
                 closed = span == 360
-                img = imager.image(
-                    pos[sel], ranges[sel], toward[sel], closed=closed, antennas=(tx[sel], rx[sel])
-                )
+                img = imager.image(pos[sel], rho[sel], toward[sel], closed=closed)
                 if len(img.contour) < 8:
                     conf[key][ci, ci - 1] += 1  # nothing imaged: counted as wrong
                     continue

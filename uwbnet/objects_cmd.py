@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from fusion_center.objects.alphabet import alphabet, place
-from fusion_center.objects.fuzzy import FuzzyRpmImager
+from fusion_center.objects.fuzzy import FuzzyRpmImager, monostatic_distance
 from fusion_center.objects.recognition import CssRecognizer
 from fusion_center.objects.scan import ScanData, process_scan, track_centre
 from protocol import Ir, NodeInfo
@@ -51,9 +51,9 @@ def scan_contour(
     fuzzy imaging chain (wavefronts with ``range_noise``), shape (Q, 2)."""
     echoes = scan_echoes(PrismTarget(vertices=vertices), track, beamwidth)
     ranges = geometric_wavefronts(echoes, rng, range_noise=range_noise)
-    tx, rx, toward = track.antennas()
+    _, _, toward = track.antennas()
     img = FuzzyRpmImager().image(
-        track.positions(), ranges, toward, closed=track.closed, antennas=(tx, rx)
+        track.positions(), monostatic_distance(ranges, track.baseline), toward, closed=track.closed
     )
     return img.contour
 

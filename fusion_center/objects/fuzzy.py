@@ -166,7 +166,17 @@ def ellipse_intersections(
     -------
     ndarray, float64, shape (..., 2)
     """
-    p = np.array(start, float)
+    start = np.asarray(start, float)
+    shape = np.broadcast_shapes(
+        start.shape, *(np.shape(a) for a in (tx_i, rx_i, tx_j, rx_j)),
+        (*np.shape(r_i), 2), (*np.shape(r_j), 2),
+    )  # fmt: skip
+    out = np.full(shape, np.nan)
+    live = np.isfinite(np.broadcast_to(start, shape)).all(axis=-1)
+    # Only the finite starts (most candidates of a scan are NaN padding).
+    ti, ri, tj, rj, p = (np.broadcast_to(a, shape)[live] for a in (tx_i, rx_i, tx_j, rx_j, start))
+    p = p.copy()
+    li, lj = np.broadcast_to(r_i, shape[:-1])[live], np.broadcast_to(r_j, shape[:-1])[live]
 
     def residual_and_grad(t: FloatArray, r: FloatArray, q: FloatArray) -> tuple[FloatArray, ...]:
         a, b = q - t, q - r
@@ -174,23 +184,34 @@ def ellipse_intersections(
         grad = a / np.maximum(na, 1e-12)[..., None] + b / np.maximum(nb, 1e-12)[..., None]
         return na + nb, grad
 
+    good = np.zeros(len(p), bool)
+    act = np.arange(len(p))  # candidates still iterating
     with np.errstate(invalid="ignore", divide="ignore"):
-        for _ in range(iterations):
-            s_i, g_i = residual_and_grad(tx_i, rx_i, p)
-            s_j, g_j = residual_and_grad(tx_j, rx_j, p)
-            f_i, f_j = s_i - r_i, s_j - r_j
-            det = g_i[..., 0] * g_j[..., 1] - g_i[..., 1] * g_j[..., 0]
+        for it in range(iterations + 1):
+            q = p[act]
+            s_i, g_i = residual_and_grad(ti[act], ri[act], q)
+            s_j, g_j = residual_and_grad(tj[act], rj[act], q)
+            f_i, f_j = s_i - li[act], s_j - lj[act]
+            done = (np.abs(f_i) < tol) & (np.abs(f_j) < tol)
+            good[act[done]] = True
+            keep = ~done & np.isfinite(f_i + f_j)
+            act, f_i, f_j, g_i, g_j = act[keep], f_i[keep], f_j[keep], g_i[keep], g_j[keep]
+            if not len(act) or it == iterations:
+                break
+            det = g_i[:, 0] * g_j[:, 1] - g_i[:, 1] * g_j[:, 0]
             det = np.where(np.abs(det) > 1e-9, det, np.nan)
-            dx = (f_i * g_j[..., 1] - f_j * g_i[..., 1]) / det
-            dy = (g_i[..., 0] * f_j - g_j[..., 0] * f_i) / det
-            step = np.stack([dx, dy], axis=-1)
+            step = np.stack(
+                [
+                    (f_i * g_j[:, 1] - f_j * g_i[:, 1]) / det,
+                    (g_i[:, 0] * f_j - g_j[:, 0] * f_i) / det,
+                ],
+                axis=-1,
+            )
             # Damped: a step longer than 5 cm means the start was on the wrong branch.
             size = np.linalg.norm(step, axis=-1, keepdims=True)
-            p = p - step * np.minimum(1.0, 0.05 / np.maximum(size, 1e-300))
-        s_i, _ = residual_and_grad(tx_i, rx_i, p)
-        s_j, _ = residual_and_grad(tx_j, rx_j, p)
-        good = (np.abs(s_i - r_i) < tol) & (np.abs(s_j - r_j) < tol)
-    return np.where(good[..., None], p, np.nan)
+            p[act] -= step * np.minimum(1.0, 0.05 / np.maximum(size, 1e-300))
+    out[live] = np.where(good[:, None], p, np.nan)
+    return out
 
 
 class FuzzyRpmImager:

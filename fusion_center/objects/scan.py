@@ -10,10 +10,17 @@ channels, the sensor poses and antenna geometry. Steps:
    :class:`node_agent.dsp.deconvolution.WienerDeconvolver`) of the co-polar sum and pulse
    separation by the Dynamic Correlation Method (:mod:`.pulses`) in the range gate of the
    track; echoes more than ``dynamic_range_db`` below the scan's strongest are dropped.
-3. **Contour**: fuzzy RPM imaging (:mod:`.fuzzy`).
+3. **Contour**: fuzzy RPM imaging (:mod:`.fuzzy`) with the bistatic range ellipses of the
+   Tx/Rx pair (not the boresight conversion to a monostatic distance, which a wide baseline
+   breaks off the boresight).
 4. **Polarimetry and material**: depolarization ``P_VH / P_VV`` around the first wavefront;
    corner points where the 45-degree cross-polar channel is strong; ellipsometry (eq. (16))
-   on the positions whose contour is locally straight (faces).
+   on the faces: straight runs of the contour (:func:`face_lines`), the face echo of each
+   position and its bistatic specular point by the image method (:func:`face_echoes`), the
+   incidence angle ``sin theta = |n x (T - R)| / r`` from the measured range
+   (:func:`~fusion_center.objects.material.bistatic_incidence_angle`), specular points at
+   least ``min_corner_distance`` from the face's imaged ends (Fig. 37: corner diffraction
+   biases ``rho``).
 Pure numpy.
 """
 
@@ -363,6 +370,12 @@ def process_scan(
     co = vv + hh  # a face returns V and H with the same sign (S = Gamma I at normal incidence)
     env = np.abs(np.where(gate, co, 0.0))
     k_pos, k_max = np.unravel_index(int(np.argmax(env)), env.shape)
+    # The reference's time origin is the echo's peak between samples (band-limited
+    # interpolation on a 1/64-sample grid), not the nearest sample: else every range of the
+    # scan is off by up to half a sample (2 cm), and so is the incidence angle from it.
+    fine = k_max + np.arange(-32, 33) / 64
+    peak_val = sample_at(np.broadcast_to(co[k_pos], (len(fine), n)), fine)
+    origin = float(fine[np.argmax(np.abs(peak_val))]) - k_max
     lo = max(k_max - pulse_half_width, 0)
     ref = co[k_pos, lo : k_max + pulse_half_width + 1]
     centre_idx = k_max - lo
@@ -383,7 +396,7 @@ def process_scan(
     for i in range(n_pos):  # one DCM run per scan position, not per sample
         p = dcm.separate(deconv[i, g0:g1], noise_out)
         m = min(len(p.delays), max_fronts)
-        ranges[i, :m] = C * (scan.t0 + (g0 + p.delays[:m]) / scan.fs)
+        ranges[i, :m] = C * (scan.t0 + (g0 + origin + p.delays[:m]) / scan.fs)
         amps[i, :m] = p.amplitudes[:m]
     strong = np.abs(amps) >= np.nanmax(np.abs(amps)) * 10 ** (-dynamic_range_db / 20)
     ranges = np.where(strong, ranges, np.nan)

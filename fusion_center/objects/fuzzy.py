@@ -24,9 +24,18 @@ The 3-D extension (stacked circular scans at several heights) intersects three s
 position ``i`` at height ``z_l``, its azimuth neighbour and its elevation neighbour at
 ``z_{l+1}`` (trilateration), with the same fuzzification over neighbour pairs.
 
-Bistatic ranges ``r`` (Tx -> object -> Rx with antennas ``b`` apart, symmetric about the sensor
-position) are turned into monostatic distances by ``rho = sqrt((r/2)^2 - (b/2)^2)``, exact for
-a scatterer on the boresight. Pure numpy.
+**Bistatic antennas.** A bistatic range ``r`` (Tx -> object -> Rx, antennas ``b`` apart) puts
+the scatterer on an ellipse with foci Tx and Rx, not on a circle. Its monostatic equivalent
+``rho = sqrt((r/2)^2 - (b/2)^2)`` (:func:`monostatic_distance`) is exact only on the boresight;
+with a wide baseline (0.8 m at 0.7 m range) the circle of that radius misses the ellipse by
+centimetres off the boresight. Given the antenna positions, :meth:`FuzzyRpmImager.image`
+therefore replaces the law-of-cosines step by the intersection of the two range *ellipses*
+``|P - T_i| + |P - R_i| = r_i`` and ``|P - T_j| + |P - R_j| = r_j``
+(:func:`ellipse_intersections`: Newton's method started at the circle intersection; the
+bistatic generalisation of the Section 7.5 step, which it equals for ``b = 0``). For a point
+scatterer the intersection is the point itself, for a face it converges to the bistatic
+specular point as the neighbours close in, as the circle intersection does monostatically.
+Pure numpy.
 """
 
 from __future__ import annotations
@@ -126,6 +135,85 @@ def circle_intersections(
     return s_i + rho_i[..., None] * (cos_a[..., None] * e + sin_a[..., None] * n)
 
 
+def ellipse_intersections(
+    tx_i: FloatArray,
+    rx_i: FloatArray,
+    r_i: FloatArray,
+    tx_j: FloatArray,
+    rx_j: FloatArray,
+    r_j: FloatArray,
+    start: FloatArray,
+    *,
+    iterations: int = 8,
+    tol: float = 1e-6,
+) -> FloatArray:
+    """Intersection of two bistatic range ellipses nearest ``start``, broadcast.
+
+    Solves ``|P - T_i| + |P - R_i| = r_i``, ``|P - T_j| + |P - R_j| = r_j`` for ``P`` by
+    Newton's method (2x2 Jacobian: the sums of the unit vectors from the foci) from ``start``
+    (the monostatic circle intersection, a few mm to cm away). NaN where ``start`` is NaN,
+    the ellipses are too close to tangent there, or the residual stays above ``tol`` (m).
+
+    Parameters
+    ----------
+    tx_i, rx_i, tx_j, rx_j : ndarray, shape (..., 2)
+        Transmitter and receiver of positions i and j, world x, y, m.
+    r_i, r_j : ndarray, shape (...)
+        Bistatic ranges, m.
+    start : ndarray, shape (..., 2)
+
+    Returns
+    -------
+    ndarray, float64, shape (..., 2)
+    """
+    start = np.asarray(start, float)
+    shape = np.broadcast_shapes(
+        start.shape, *(np.shape(a) for a in (tx_i, rx_i, tx_j, rx_j)),
+        (*np.shape(r_i), 2), (*np.shape(r_j), 2),
+    )  # fmt: skip
+    out = np.full(shape, np.nan)
+    live = np.isfinite(np.broadcast_to(start, shape)).all(axis=-1)
+    # Only the finite starts (most candidates of a scan are NaN padding).
+    ti, ri, tj, rj, p = (np.broadcast_to(a, shape)[live] for a in (tx_i, rx_i, tx_j, rx_j, start))
+    p = p.copy()
+    li, lj = np.broadcast_to(r_i, shape[:-1])[live], np.broadcast_to(r_j, shape[:-1])[live]
+
+    def residual_and_grad(t: FloatArray, r: FloatArray, q: FloatArray) -> tuple[FloatArray, ...]:
+        a, b = q - t, q - r
+        na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+        grad = a / np.maximum(na, 1e-12)[..., None] + b / np.maximum(nb, 1e-12)[..., None]
+        return na + nb, grad
+
+    good = np.zeros(len(p), bool)
+    act = np.arange(len(p))  # candidates still iterating
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for it in range(iterations + 1):
+            q = p[act]
+            s_i, g_i = residual_and_grad(ti[act], ri[act], q)
+            s_j, g_j = residual_and_grad(tj[act], rj[act], q)
+            f_i, f_j = s_i - li[act], s_j - lj[act]
+            done = (np.abs(f_i) < tol) & (np.abs(f_j) < tol)
+            good[act[done]] = True
+            keep = ~done & np.isfinite(f_i + f_j)
+            act, f_i, f_j, g_i, g_j = act[keep], f_i[keep], f_j[keep], g_i[keep], g_j[keep]
+            if not len(act) or it == iterations:
+                break
+            det = g_i[:, 0] * g_j[:, 1] - g_i[:, 1] * g_j[:, 0]
+            det = np.where(np.abs(det) > 1e-9, det, np.nan)
+            step = np.stack(
+                [
+                    (f_i * g_j[:, 1] - f_j * g_i[:, 1]) / det,
+                    (g_i[:, 0] * f_j - g_j[:, 0] * f_i) / det,
+                ],
+                axis=-1,
+            )
+            # Damped: a step longer than 5 cm means the start was on the wrong branch.
+            size = np.linalg.norm(step, axis=-1, keepdims=True)
+            p[act] -= step * np.minimum(1.0, 0.05 / np.maximum(size, 1e-300))
+    out[live] = np.where(good[:, None], p, np.nan)
+    return out
+
+
 class FuzzyRpmImager:
     """Fuzzy RPM imaging of one circular (or partial circular) scan, eq. of Section 7.5.
 
@@ -144,6 +232,7 @@ class FuzzyRpmImager:
         toward: npt.ArrayLike,
         *,
         closed: bool,
+        antennas: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
     ) -> FuzzyImage:
         """Image points of every wavefront and the 2-D contour.
 
@@ -152,11 +241,16 @@ class FuzzyRpmImager:
         positions : array_like, float, shape (P, 2)
             Sensor positions along the track, in track order, world x, y, m.
         distances : array_like, float, shape (P, M)
-            Monostatic distance of each wavefront, m, ascending per row (NaN: none).
+            Monostatic distance of each wavefront, m, ascending per row (NaN: none); with
+            ``antennas``, the bistatic range Tx -> object -> Rx instead.
         toward : array_like, float, shape (P, 2)
             Direction from each position toward the object (the boresight).
         closed : bool
             The track is a full circle (neighbours wrap around).
+        antennas : (tx, rx), each array_like of shape (P, 2), optional
+            World x, y of the transmitter and receiver at each position: the candidates are
+            then the intersections of the range ellipses (see the module doc), and the
+            antennas' midpoints take the place of ``positions``.
 
         Returns
         -------
@@ -170,6 +264,14 @@ class FuzzyRpmImager:
         # Only as many wavefront columns as some position has (the rest is NaN padding).
         m = max(int(np.isfinite(rho).sum(axis=1).max(initial=0)), 1)
         rho = np.sort(rho, axis=1)[:, :m]
+        if antennas is not None:
+            tx, rx = (np.asarray(a, float) for a in antennas)
+            bistatic = rho
+            # Pairing and the Newton start use the monostatic equivalent on each position.
+            half_b = 0.5 * np.linalg.norm(tx - rx, axis=1)[:, None]
+            with np.errstate(invalid="ignore"):
+                rho = np.sqrt(np.maximum((bistatic / 2) ** 2 - half_b**2, 0.0))
+            pos = 0.5 * (tx + rx)
         deltas = np.concatenate(
             [-np.arange(1, cfg.neighbours + 1), np.arange(1, cfg.neighbours + 1)]
         )
@@ -193,6 +295,21 @@ class FuzzyRpmImager:
             rho_pair,
             np.broadcast_to(bs[:, None, None, :], (*ok.shape, 2)),
         )  # (P, D, M, 2)
+        if antennas is not None:
+            r_j = np.take_along_axis(bistatic[idx], best, axis=-1)
+            shape = (*ok.shape, 2)
+            cand = ellipse_intersections(
+                np.broadcast_to(tx[:, None, None, :], shape),
+                np.broadcast_to(rx[:, None, None, :], shape),
+                np.broadcast_to(bistatic[:, None, :], ok.shape),
+                np.broadcast_to(tx[idx][:, :, None, :], shape),
+                np.broadcast_to(rx[idx][:, :, None, :], shape),
+                r_j,
+                cand,
+            )
+            # Keep the root in front of the sensor (the other lies behind the antennas).
+            ahead = np.sum((cand - pos[:, None, None, :]) * bs[:, None, None, :], axis=-1)
+            cand = np.where((ahead > 0)[..., None], cand, np.nan)
         ok &= np.isfinite(cand).all(axis=-1)
         weight = np.exp(-0.5 * ((np.abs(deltas) - cfg.weight_centre) / cfg.weight_width) ** 2)
         w = np.where(ok, weight[None, :, None], 0.0)  # (P, D, M)

@@ -70,6 +70,50 @@ def incidence_angle(
     return np.arccos(np.clip(np.sum(d * n, axis=-1) / np.linalg.norm(d, axis=-1), -1.0, 1.0))
 
 
+def bistatic_incidence_angle(
+    tx: npt.ArrayLike, rx: npt.ArrayLike, bistatic_range: npt.ArrayLike, normal: npt.ArrayLike
+) -> FloatArray:
+    """Angle of incidence of a specular reflection from the measured bistatic range, rad.
+
+    A plane with unit normal ``n`` mirrors the transmitter ``T`` to ``T'``; the specular path
+    has the length ``r = |R - T'|`` (image method) and meets the plane at ``theta`` from its
+    normal. Mirroring keeps the components along the plane, so the part of ``R - T'`` along
+    the plane is that of ``R - T`` and
+
+    .. math::
+
+        \\sin\\theta = \\frac{|n \\times (T - R)|}{r}
+                    = \\frac{b\\,|n \\cdot f|}{r},
+
+    with ``b`` the baseline and ``f`` the unit vector normal to it in the plane of incidence
+    (the boresight of the scan's antennas). Equivalently ``cos theta = 2 u / r`` with
+    ``u = sqrt(r^2 - b^2 (n . f)^2) / 2`` the distance of the plane from the antennas'
+    midpoint. Needs neither the specular point nor the plane's distance, only the measured
+    ``r`` and the face orientation, and is insensitive to the latter near ``n || f``
+    (``d sin theta / d psi = 0`` there).
+
+    Parameters
+    ----------
+    tx, rx : array_like, shape (..., 2)
+        World x, y of transmitter and receiver, m.
+    bistatic_range : array_like, shape (...)
+        Measured path length Tx -> plane -> Rx, m.
+    normal : array_like, shape (..., 2)
+        Unit normal of the plane (either sign).
+
+    Returns
+    -------
+    ndarray, float64, shape (...)
+        NaN where the range is shorter than the baseline component along the plane.
+    """
+    d = np.asarray(tx, float) - np.asarray(rx, float)
+    n = np.asarray(normal, float)
+    along = np.abs(d[..., 0] * n[..., 1] - d[..., 1] * n[..., 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = along / np.asarray(bistatic_range, float)
+    return np.arcsin(np.where(s <= 1.0, s, np.nan))
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CornerCorrectionTable:
     """Bias of the polarization ratio near corners (Fig. 37 of the CoLOR chapter).

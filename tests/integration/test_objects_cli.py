@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import sim_nodes
 from protocol import Ir, NodeInfo, Truth
 from protocol.recording import read_recording
 from tests.cli import assert_one_line_error, last_json, uwbnet
@@ -66,3 +67,22 @@ def test_objects_one_line_errors(tmp_path: Path) -> None:
     foyer = tmp_path / "f.mcap"
     assert uwbnet("sim", "foyer3", "--duration", "0.2", "--out", str(foyer)).returncode == 0
     assert_one_line_error(uwbnet("objects", str(foyer)), "scan positions")
+
+
+def test_objects_permittivity_of_a_brick_like_slab_with_a_wide_baseline(tmp_path: Path) -> None:
+    # circle_slab (0.8 m baseline) with eps_r 4.5: the bistatic specular geometry from the
+    # recording alone (no truth) must put eq. (16) within 3 %.
+    shipped = Path(sim_nodes.__file__).parent / "scenarios" / "circle_slab.toml"
+    text = shipped.read_text()
+    assert "permittivity = 2.9" in text
+    toml = tmp_path / "slab45.toml"
+    toml.write_text(text.replace("permittivity = 2.9", "permittivity = 4.5"))
+    rec = tmp_path / "slab45.mcap"
+    proc = uwbnet("sim", str(toml), "--seed", "2", "--out", str(rec))
+    assert proc.returncode == 0, proc.stderr
+    proc = uwbnet("objects", str(rec), "--json")
+    assert proc.returncode == 0, proc.stderr
+    m = last_json(proc)["material"]
+    assert m["face_positions"] >= 30
+    assert m["permittivity"] == pytest.approx(4.5, rel=0.03)
+    assert m["metal_like"] is False

@@ -13,6 +13,15 @@ chapter derives placement and track rules from the AF; the search here is the us
 forward selection (add the site that lowers ``J`` most) followed by a 1-swap local search
 (replace one chosen site by a nearby unused one while ``J`` drops), as for sensor selection
 in general.
+
+The search scores hundreds of networks, so it uses a cheaper proxy of the final evaluation (a
+coarser ghost-search grid; by default the same reference points). A proxy can be overfitted:
+the best selection under the proxy need not be the best on the final maps. So the search ends
+with a re-ranking, as in two-stage (proxy then exact) model selection: the ``rerank``
+best distinct selections under the proxy, plus every given start (the naive placement), are
+evaluated at the final settings and the lowest final ``J`` wins. A start is always among them,
+so the result is never worse than it on the final objective; if a start wins, nothing better
+was found and :attr:`PlacementResult.improved` says so.
 """
 
 from __future__ import annotations
@@ -36,6 +45,9 @@ __all__ = [
 ]
 
 FloatArray = npt.NDArray[np.float64]
+
+#: Final-objective gain (dB) below which a start (the naive placement) is kept.
+_MARGIN_DB = 0.01
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -118,7 +130,19 @@ class PlacementResult:
     history : list of (str, tuple, float)
         ``(step, selection, cost)`` after every greedy addition and accepted swap.
     evaluations : int
-        Number of networks evaluated.
+        Number of networks evaluated at the search settings.
+    final_cost : float
+        Objective ``J`` of the selection at the final settings (the search settings when no
+        final settings were given).
+    final_evaluation : AreaEvaluation or None
+        The selection's evaluation at the final settings.
+    ranking : list of (tuple, float, float)
+        ``(selection, search cost, final cost)`` of every re-ranked selection, best final
+        first.
+    start_final_costs : list of float
+        Final ``J`` of every given start, in order.
+    start_final_evaluations : list of AreaEvaluation
+        Their evaluations at the final settings.
     """
 
     selection: tuple[int, ...]
@@ -126,6 +150,17 @@ class PlacementResult:
     evaluation: AreaEvaluation
     history: list[tuple[str, tuple[int, ...], float]] = field(default_factory=list)
     evaluations: int = 0
+    final_cost: float = np.nan
+    final_evaluation: AreaEvaluation | None = None
+    ranking: list[tuple[tuple[int, ...], float, float]] = field(default_factory=list)
+    start_final_costs: list[float] = field(default_factory=list)
+    start_final_evaluations: list[AreaEvaluation] = field(default_factory=list)
+
+    @property
+    def improved(self) -> bool:
+        """Whether the selection beats every given start on the final objective (strictly,
+        by more than 0.01 dB); ``True`` when there were no starts."""
+        return all(self.final_cost < c - _MARGIN_DB for c in self.start_final_costs)
 
 
 class GreedyPlacementOptimizer:
@@ -135,10 +170,19 @@ class GreedyPlacementOptimizer:
     ----------
     band : Band
     area : Area
-        Evaluation area and ghost-search grid (use a coarse grid here: the search evaluates
-        hundreds of networks; re-evaluate the result on a fine grid).
+        Evaluation area and ghost-search grid of the search proxy (a coarse grid: the search
+        evaluates hundreds of networks).
     references : (mx, my)
-        Reference points of the objective.
+        Reference points of the search objective (use the final ones or a superset: the worst
+        ghost is a maximum over them, and fewer points miss the worst one).
+    final_area : Area, optional
+        Ghost-search grid of the final evaluation (the maps reported); with it, the search
+        ends with the re-ranking at the final settings.
+    final_references : (mx, my), optional
+        Reference points of the final evaluation (default ``references``).
+    rerank : int
+        Distinct best selections under the proxy re-evaluated at the final settings (the
+        starts come on top).
     neighbours : int
         Unused sites nearest to a chosen site tried as its replacement in a swap.
     sweeps : int
@@ -153,13 +197,21 @@ class GreedyPlacementOptimizer:
         area: Area,
         references: tuple[int, int] = (4, 3),
         *,
+        final_area: Area | None = None,
+        final_references: tuple[int, int] | None = None,
+        rerank: int = 4,
         neighbours: int = 4,
         sweeps: int = 2,
         resolution_scale: float = 1.0,
     ) -> None:
+        if rerank < 1:
+            raise ValueError(f"rerank must be >= 1, got {rerank}")
         self.band = band
         self.area = area
         self.references = references
+        self.final_area = final_area
+        self.final_references = final_references or references
+        self.rerank = rerank
         self.neighbours = neighbours
         self.sweeps = sweeps
         self.resolution_scale = resolution_scale
@@ -179,6 +231,20 @@ class GreedyPlacementOptimizer:
             self._cache[key] = (placement_cost(ev, self.resolution_scale), ev)
         return self._cache[key]
 
+    def evaluate_final(
+        self,
+        candidates: SiteCandidates,
+        selection: Sequence[int],
+        fixed: NetworkGeometry | None = None,
+    ) -> tuple[float, AreaEvaluation]:
+        """Objective and evaluation of one selection at the final settings (the search
+        settings when no ``final_area`` was given)."""
+        if self.final_area is None:
+            return self.evaluate(candidates, selection, fixed)
+        net = compose_network(candidates, sorted(int(s) for s in selection), fixed)
+        ev = evaluate_area(net, self.band, self.final_area, self.final_references)
+        return placement_cost(ev, self.resolution_scale), ev
+
     def optimize(
         self,
         candidates: SiteCandidates,
@@ -187,8 +253,10 @@ class GreedyPlacementOptimizer:
         starts: Sequence[Sequence[int]] = (),
     ) -> PlacementResult:
         """Choose ``k`` sites: greedy selection, then local refinement of the greedy result and
-        of every selection in ``starts`` (e.g. the naive placement); the best one wins, so the
-        result is never worse than a given start under the search objective.
+        of every selection in ``starts`` (e.g. the naive placement) under the search proxy;
+        then the ``rerank`` best distinct ``k``-site selections under the proxy and every start
+        are evaluated at the final settings and the lowest final objective wins, so the result
+        is never worse than a given start on the final objective.
 
         Raises
         ------
@@ -218,24 +286,45 @@ class GreedyPlacementOptimizer:
             cost = best[0]
             chosen.append(best[1])
             history.append((f"add {step + 1}", tuple(chosen), cost))
-        best_sel, best_cost = self._refine(candidates, chosen, cost, fixed, history, "greedy")
+        self._refine(candidates, chosen, cost, fixed, history, "greedy")
+        start_keys = []
         for n, start in enumerate(starts):
             sel = [int(c) for c in start]
-            if len(set(sel)) != k:
-                raise ValueError(f"start {n}: need {k} distinct sites")
+            if len(set(sel)) != k or not all(0 <= c < len(candidates) for c in sel):
+                raise ValueError(f"start {n}: need {k} distinct sites of 0..{len(candidates) - 1}")
             j, _ = self.evaluate(candidates, sel, fixed)
             history.append((f"start {n + 1}", tuple(sel), j))
-            sel, j = self._refine(candidates, sel, j, fixed, history, f"start {n + 1}")
-            if j < best_cost:
-                best_sel, best_cost = sel, j
-        chosen = best_sel
-        cost, evaluation = self.evaluate(candidates, chosen, fixed)
+            start_keys.append(tuple(sorted(sel)))
+            self._refine(candidates, sel, j, fixed, history, f"start {n + 1}")
+        evaluations = len(self._cache)
+        # Re-rank: the best k-site selections under the proxy (the cache holds every one
+        # scored) and the starts, at the final settings.
+        full = sorted((j, key) for key, (j, _) in self._cache.items() if len(key) == k)
+        pool = list(dict.fromkeys([key for _, key in full[: self.rerank]] + start_keys))
+        finals = {key: self.evaluate_final(candidates, key, fixed) for key in pool}
+        ranking = sorted(
+            ((key, self._cache[key][0], finals[key][0]) for key in pool),
+            key=lambda r: (r[2], r[1]),
+        )
+        best = ranking[0][0]
+        if start_keys:
+            # Keep the best start unless something beats it clearly (by > 0.01 dB): a tie
+            # is no reason to move sensors away from the reference layout.
+            best_start = min(start_keys, key=lambda key: finals[key][0])
+            if finals[best][0] >= finals[best_start][0] - _MARGIN_DB:
+                best = best_start
+        cost, evaluation = self.evaluate(candidates, best, fixed)
         return PlacementResult(
-            selection=tuple(chosen),
+            selection=best,
             cost=cost,
             evaluation=evaluation,
             history=history,
-            evaluations=len(self._cache),
+            evaluations=evaluations,
+            final_cost=finals[best][0],
+            final_evaluation=finals[best][1],
+            ranking=ranking,
+            start_final_costs=[finals[key][0] for key in start_keys],
+            start_final_evaluations=[finals[key][1] for key in start_keys],
         )
 
     def _refine(

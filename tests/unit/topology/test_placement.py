@@ -76,9 +76,77 @@ def test_greedy_search_beats_or_equals_the_even_placement():
     assert result.history[0][0] == "add 1"
 
 
+def _collinear_case() -> tuple[SiteCandidates, NetworkGeometry]:
+    # A robot track whose own receivers lie on its line (y = 2): the whole network is
+    # mirror-symmetric about that line, so every reference point has a 0 dB mirror ghost.
+    # The naive (evenly spaced) pick of 2 of these 6 sites is sites 0 and 3, both on the
+    # line too; any site off the line breaks the symmetry.
+    tx = np.column_stack([np.linspace(1.0, 5.0, 9), np.full(9, 2.0)])
+    fixed = NetworkGeometry(
+        transmitters=tx, receivers=tx + np.array([0.3, 0.0]), links=[[i, i] for i in range(9)]
+    )
+    pos = np.array([[0.3, 2.0], [1.5, 0.3], [4.5, 0.3], [5.7, 2.0], [3.0, 3.7], [0.3, 0.8]])
+    cands = SiteCandidates(
+        positions=pos, transmitters=np.zeros((6, 0, 2)), receivers=pos[:, None, :]
+    )
+    return cands, fixed
+
+
+def test_reranked_result_beats_naive_on_the_final_objective():
+    cands, fixed = _collinear_case()
+    final_area = AREA.with_grid(60, 40)
+    opt = GreedyPlacementOptimizer(
+        BAND,
+        AREA.with_grid(20, 14),  # a cheap proxy grid for the search
+        (3, 2),
+        final_area=final_area,
+        final_references=(3, 2),
+        rerank=2,
+        neighbours=2,
+        sweeps=1,
+    )
+    naive = even_selection(len(cands), 2)
+    assert naive == (0, 3)
+    result = opt.optimize(cands, 2, fixed, starts=[naive])
+
+    # The final objective, recomputed independently at the final settings.
+    def final(sel: tuple[int, ...]) -> float:
+        return placement_cost(
+            evaluate_area(compose_network(cands, sel, fixed), BAND, final_area, (3, 2))
+        )
+
+    j_naive, j_opt = final(naive), final(result.selection)
+    assert j_naive == pytest.approx(result.start_final_costs[0], abs=1e-6)
+    assert j_opt == pytest.approx(result.final_cost, abs=1e-6)
+    assert result.start_final_evaluations[0].worst_ghost_db > -1.0  # the mirror ghost
+    # A clear improvement exists (an off-line receiver): it must be found, by > 6 dB.
+    assert j_opt < j_naive - 6.0
+    assert result.improved
+    assert not set(result.selection) & {0, 3}
+    # The winner is the best of the re-ranked pool on the final objective, naive included.
+    assert result.selection == result.ranking[0][0]
+    assert [r[2] for r in result.ranking] == sorted(r[2] for r in result.ranking)
+    assert naive in [r[0] for r in result.ranking]
+
+
+def test_naive_is_kept_when_nothing_beats_it():
+    # Budget = every candidate: the only selection is the naive one, and the result says so.
+    cands, fixed = _collinear_case()
+    opt = GreedyPlacementOptimizer(
+        BAND, AREA.with_grid(20, 14), (1, 1), final_area=AREA.with_grid(30, 20), rerank=3
+    )
+    naive = even_selection(len(cands), len(cands))
+    result = opt.optimize(cands, len(cands), fixed, starts=[naive])
+    assert result.selection == naive
+    assert result.final_cost == pytest.approx(result.start_final_costs[0])
+    assert not result.improved
+
+
 def test_bad_budget_is_rejected():
     opt = GreedyPlacementOptimizer(BAND, AREA, (1, 1))
     with pytest.raises(ValueError, match="k = 11"):
         opt.optimize(_receiver_sites(), 11, _track())
     with pytest.raises(ValueError, match="need 1 <= k"):
         even_selection(3, 0)
+    with pytest.raises(ValueError, match="rerank"):
+        GreedyPlacementOptimizer(BAND, AREA, rerank=0)

@@ -152,11 +152,9 @@ class DynamicCorrelationSeparator:
         return Pulses(delays=np.asarray(delays)[order], amplitudes=np.asarray(amps)[order])
 
 
-class CleanSeparator:
-    """CLEAN: subtract one reference pulse at the correlation maximum until only noise is left.
-
-    Parameters as :class:`DynamicCorrelationSeparator`.
-    """
+class _CorrelatingSeparator:
+    """What CLEAN and the peak picker share: the upsampled correlator with the reference
+    pulse, the detection threshold (noise deviations) and the most pulses reported."""
 
     def __init__(
         self,
@@ -171,6 +169,13 @@ class CleanSeparator:
         self._c = _Correlator(reference, n, upsample, centre)
         self.threshold = threshold
         self.max_pulses = max_pulses
+
+
+class CleanSeparator(_CorrelatingSeparator):
+    """CLEAN: subtract one reference pulse at the correlation maximum until only noise is left.
+
+    Parameters as :class:`DynamicCorrelationSeparator`.
+    """
 
     def separate(self, y: npt.ArrayLike, noise_std: float) -> Pulses:
         """Delays (samples) and amplitudes of the pulses in ``y`` (n,)."""
@@ -191,25 +196,11 @@ class CleanSeparator:
         return Pulses(delays=np.asarray(delays)[order], amplitudes=np.asarray(amps)[order])
 
 
-class MatchedFilterPeakPicker:
+class MatchedFilterPeakPicker(_CorrelatingSeparator):
     """Local maxima of the matched-filter output above ``threshold`` noise deviations.
 
     Parameters as :class:`DynamicCorrelationSeparator`.
     """
-
-    def __init__(
-        self,
-        reference: npt.ArrayLike,
-        n: int,
-        *,
-        upsample: int = 8,
-        threshold: float = 6.0,
-        max_pulses: int = 6,
-        centre: int | None = None,
-    ) -> None:
-        self._c = _Correlator(reference, n, upsample, centre)
-        self.threshold = threshold
-        self.max_pulses = max_pulses
 
     def separate(self, y: npt.ArrayLike, noise_std: float) -> Pulses:
         """Delays (samples) and amplitudes of the correlation peaks of ``y`` (n,)."""

@@ -20,8 +20,8 @@ from fusion_center.core import FusionCore, FusionCoreConfig, tracks_json
 from fusion_center.tracking.base import Tracker
 from node_agent.core import NodeConfigError, NodeCore, detections_message
 from node_agent.dsp.pipeline import NodeDspConfig
-from protocol import Detections, Ir, NodeInfo, ProtocolError, Truth, decode
-from protocol.recording import read_recording
+from protocol import Detections, Ir, NodeInfo, ProtocolError, Truth
+from protocol.recording import decoded_messages, read_recording
 
 log = logging.getLogger(__name__)
 
@@ -90,19 +90,7 @@ def track_recording(
                     f.write(json.dumps(tracks_json(o), separators=(",", ":")) + "\n")
                     stats.updates += 1
 
-            for rec in read_recording(path):
-                stats.messages += 1
-                if progress is not None:
-                    progress(len(rec.payload))
-                kind = rec.message_kind
-                if kind not in ("node_info", "ir", "detections"):
-                    continue
-                try:
-                    msg = decode(rec.payload)
-                except ProtocolError as exc:
-                    stats.rejected += 1
-                    log.warning("%s: message rejected: %s", rec.topic, exc)
-                    continue
+            for msg in decoded_messages(path, ("node_info", "ir", "detections"), stats, progress):
                 if isinstance(msg, NodeInfo):
                     infos[msg.src] = msg
                     fusion.add_node(msg)

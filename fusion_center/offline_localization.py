@@ -24,8 +24,8 @@ import numpy as np
 from fusion_center.localization.crlb import position_error_bound, range_crlb
 from fusion_center.localization.mobile import LocalizerConfig
 from fusion_center.pose_core import PoseCore, pose_json
-from protocol import Detections, NodeInfo, ProtocolError, Truth, decode
-from protocol.recording import read_recording
+from protocol import Detections, NodeInfo, ProtocolError, Truth
+from protocol.recording import decoded_messages, read_recording
 
 log = logging.getLogger(__name__)
 
@@ -70,18 +70,7 @@ def localize_recording(
     stats = LocalizeStats()
     try:
         with open(partial, "w", encoding="utf-8") as f:
-            for rec in read_recording(path):
-                stats.messages += 1
-                if progress is not None:
-                    progress(len(rec.payload))
-                if rec.message_kind not in ("node_info", "detections"):
-                    continue
-                try:
-                    msg = decode(rec.payload)
-                except ProtocolError as exc:
-                    stats.rejected += 1
-                    log.warning("%s: message rejected: %s", rec.topic, exc)
-                    continue
+            for msg in decoded_messages(path, ("node_info", "detections"), stats, progress):
                 if isinstance(msg, NodeInfo):
                     core.add_node(msg)
                 elif isinstance(msg, Detections) and msg.links is not None:

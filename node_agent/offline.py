@@ -20,8 +20,8 @@ from pathlib import Path
 
 from node_agent.core import NodeConfigError, radar_params
 from node_agent.dsp.ranging import FirstPathRanger
-from protocol import Ir, NodeInfo, ProtocolError, decode
-from protocol.recording import read_recording
+from protocol import Ir, NodeInfo
+from protocol.recording import decoded_messages
 
 log = logging.getLogger(__name__)
 
@@ -72,19 +72,7 @@ def range_recording(
     infos: set[str] = set()
     try:
         with open(partial, "w", encoding="utf-8") as f:
-            for rec in read_recording(path):
-                stats.messages += 1
-                if progress is not None:
-                    progress(len(rec.payload))
-                kind = rec.message_kind
-                if kind not in ("node_info", "ir"):
-                    continue
-                try:
-                    msg = decode(rec.payload)
-                except ProtocolError as exc:
-                    stats.rejected += 1
-                    log.warning("%s: message rejected: %s", rec.topic, exc)
-                    continue
+            for msg in decoded_messages(path, ("node_info", "ir"), stats, progress):
                 if isinstance(msg, NodeInfo):
                     infos.add(msg.src)
                     try:

@@ -9,18 +9,21 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Self
+from typing import IO, Protocol, Self
 
 from mcap.writer import CompressionType, Writer
 
-from protocol.errors import KeyExprError, RecordingError
+from protocol.errors import KeyExprError, ProtocolError, RecordingError
 from protocol.keys import parse_key
-from protocol.messages import KINDS, Message
+from protocol.messages import KINDS, Message, decode
 from protocol.units import seconds_to_ns
+
+_log = logging.getLogger(__name__)
 
 SCHEMA_PREFIX = "uwbnet."
 VIZ_PREFIX = "/viz/"
@@ -225,6 +228,40 @@ def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:
         except Exception as exc:  # mcap raises struct, zlib, EOF and its own errors alike
             detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise RecordingError(f"{path}: corrupt or truncated MCAP ({detail})") from None
+
+
+class ReadCounts(Protocol):
+    """The counters :func:`decoded_messages` keeps (an offline pass's stats)."""
+
+    messages: int
+    rejected: int
+
+
+def decoded_messages(
+    path: str | os.PathLike[str],
+    kinds: tuple[str, ...],
+    counts: ReadCounts,
+    progress: Callable[[int], None] | None = None,
+) -> Iterator[Message]:
+    """The messages of ``kinds`` in recording ``path``, decoded, in log order.
+
+    Every record counts in ``counts.messages`` (and its payload size goes to ``progress``);
+    a record of one of ``kinds`` that does not decode is counted in ``counts.rejected``,
+    logged and skipped: an offline pass never stops on one bad message.
+    """
+    for rec in read_recording(path):
+        counts.messages += 1
+        if progress is not None:
+            progress(len(rec.payload))
+        if rec.message_kind not in kinds:
+            continue
+        try:
+            msg = decode(rec.payload)
+        except ProtocolError as exc:
+            counts.rejected += 1
+            _log.warning("%s: message rejected: %s", rec.topic, exc)
+            continue
+        yield msg
 
 
 def recover_recording(

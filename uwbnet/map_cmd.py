@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from protocol import Ir, NodeInfo, ProtocolError, Truth, decode
-from protocol.recording import read_recording
+from protocol import Ir, NodeInfo, Truth
+from protocol.recording import decoded_messages
 
 log = logging.getLogger(__name__)
 
@@ -112,19 +112,7 @@ def map_recording(
             traj.append([o.t, float(x), float(y), float(yaw)])
             stats.updates += 1
 
-    for rec in read_recording(path):
-        stats.messages += 1
-        if progress is not None:
-            progress(len(rec.payload))
-        kind = rec.message_kind
-        if kind not in ("node_info", "ir", "truth"):
-            continue
-        try:
-            msg = decode(rec.payload)
-        except ProtocolError as exc:
-            stats.rejected += 1
-            log.warning("%s: message rejected: %s", rec.topic, exc)
-            continue
+    for msg in decoded_messages(path, ("node_info", "ir", "truth"), stats, progress):
         if isinstance(msg, NodeInfo):
             infos[msg.src] = msg
         elif isinstance(msg, Truth) and stats.robot and stats.robot in msg.nodes:

@@ -276,3 +276,30 @@ def test_not_an_mcap_file(tmp_path: Path) -> None:
     path = tmp_path / "junk.mcap"
     path.write_bytes(golden("ir"))
     _expect_recording_error(path)
+
+
+def test_decoded_messages_counts_skips_and_rejects(tmp_path: Path) -> None:
+    """Every record counts; only the asked kinds are decoded; a bad payload of an asked kind
+    is counted as rejected and skipped, and the pass goes on."""
+    from dataclasses import dataclass
+
+    from protocol.recording import decoded_messages
+
+    @dataclass
+    class Counts:
+        messages: int = 0
+        rejected: int = 0
+
+    path = tmp_path / "mixed.mcap"
+    messages = sample_messages()
+    irs = [payload for _, kind, payload, _ in messages if kind == "ir"]
+    bad_topic = f"uwbnet/{NET}/node/n-2/ir"
+    with RecordingWriter(path) as writer:
+        for topic, kind, payload, t in messages:
+            writer.write(topic, kind, payload, t)
+        writer.write(bad_topic, "ir", b"\xc1 not msgpack", 2000.0)
+    counts, sizes = Counts(), []
+    got = list(decoded_messages(path, ("ir",), counts, sizes.append))
+    assert [m.to_wire() for m in got] == irs
+    assert counts.messages == len(messages) + 1 and counts.rejected == 1
+    assert len(sizes) == counts.messages

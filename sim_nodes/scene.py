@@ -40,7 +40,15 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from sim_nodes.radar import RadarConfig
 
@@ -191,21 +199,25 @@ class MaterialModel(_Model):
         return 0.0 if self.metal else 1.0 - self.gamma() ** 2
 
 
+def _nonzero_thickness(v: float) -> float:
+    if v < 1e-3:
+        raise ValueError(f"zero-thickness wall: thickness must be at least 1 mm, got {v}")
+    return v
+
+
+#: Thickness of a wall or of a room's outline walls, m: a wall needs some (ray tracing
+#: and the scene checks place antennas against both faces).
+WallThickness = Annotated[float, Field(ge=0.0, le=2.0), AfterValidator(_nonzero_thickness)]
+
+
 class WallModel(_Model):
     """``[[walls]]``: a vertical wall on the 2-D segment start-end."""
 
     start: Point2
     end: Point2
     height: float = Field(3.0, gt=0.0, le=50.0)
-    thickness: float = Field(0.2, ge=0.0, le=2.0)
+    thickness: WallThickness = 0.2
     material: str
-
-    @field_validator("thickness")
-    @classmethod
-    def _thick(cls, v: float) -> float:
-        if v < 1e-3:
-            raise ValueError(f"zero-thickness wall: thickness must be at least 1 mm, got {v}")
-        return v
 
     @model_validator(mode="after")
     def _length(self) -> WallModel:
@@ -256,7 +268,7 @@ class RoomModel(_Model):
 
     outline: Annotated[list[Point2], Field(min_length=4)]
     material: str
-    thickness: float = Field(0.2, ge=0.0, le=2.0)
+    thickness: WallThickness = 0.2
     floor: float = 0.0
     ceiling: float | None = None
     height: float = Field(3.0, gt=0.0, le=50.0)
@@ -269,13 +281,6 @@ class RoomModel(_Model):
         _closed_polygon(v, "outline")
         if _self_intersects(v):
             raise ValueError("outline polygon intersects itself")
-        return v
-
-    @field_validator("thickness")
-    @classmethod
-    def _thick(cls, v: float) -> float:
-        if v < 1e-3:
-            raise ValueError(f"zero-thickness wall: thickness must be at least 1 mm, got {v}")
         return v
 
     @model_validator(mode="after")

@@ -323,7 +323,11 @@ class MSequenceRadar:
         """
         spec = np.asarray(channel_spectrum, np.complex64) * self._system_response32
         if rng is not None and self.config.noise:
-            spec += self.noise_spectrum(rng, spec.shape[0])
+            # noise_spectrum's draws, added in place (no complex temporary).
+            z = rng.standard_normal((spec.shape[0], 2, self.n_bins), dtype=np.float32)
+            z *= self._noise_scale
+            spec.real += z[:, 0]
+            spec.imag += z[:, 1]
         return np.fft.irfft(spec, n=self.config.n, axis=-1).astype(np.float32, copy=False)
 
     def receive(

@@ -46,6 +46,18 @@ class Walls:
         """Number of walls W."""
         return int(self.start.shape[0])
 
+    def take(self, index: npt.ArrayLike) -> Walls:
+        """The walls ``index`` (integer indices or a boolean mask), in their order."""
+        i = np.asarray(index)
+        return Walls(
+            start=self.start[i],
+            end=self.end[i],
+            height=self.height[i],
+            reflection=self.reflection[i],
+            transmission=self.transmission[i],
+            excess=None if self.excess is None else self.excess[i],
+        )
+
     @classmethod
     def empty(cls) -> Walls:
         """No walls (free space)."""

@@ -173,6 +173,7 @@ def scatter_paths(
     blockers: np.ndarray | None = None,
     blocker_radius: np.ndarray | None = None,
     shadow_db: float = 18.0,
+    antenna_side: np.ndarray | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Single-bounce paths Tx -> point scatterer -> Rx.
 
@@ -205,6 +206,9 @@ def scatter_paths(
         Body radii, m.
     shadow_db : float
         Attenuation of a leg through a body, dB.
+    antenna_side : ndarray, shape (1 + n_rx, W), optional
+        ``wall_side`` of the Tx and Rx antennas, if the caller keeps it (static antennas:
+        the simulator computes it once per node instead of once per acquisition).
 
     Returns
     -------
@@ -224,9 +228,9 @@ def scatter_paths(
     # A leg can only cross a wall whose line separates its two ends: test the sides of the
     # few antennas and points once, and trace the legs only if some wall separates them
     # (never, for a node in the same room as the people).
-    if walls.count and np.any(
-        wall_side(ant, walls)[:, None, :] * wall_side(points, walls)[None, :, :] < 0
-    ):
+    if antenna_side is None and walls.count:
+        antenna_side = wall_side(ant, walls)
+    if walls.count and np.any(antenna_side[:, None, :] * wall_side(points, walls)[None, :, :] < 0):
         leg_p = np.broadcast_to(ant[:, None, :], vec.shape).reshape(-1, 3)
         leg_q = np.broadcast_to(points[None], vec.shape).reshape(-1, 3)
         t_leg, e_leg = wall_crossings(leg_p, leg_q, walls)

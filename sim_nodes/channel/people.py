@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -74,6 +74,22 @@ class Walker:
     gait_phase: npt.NDArray[np.float64]
     breathing_phase: float
     breathing_rate: float
+    _polyline: tuple[list[list[float]], list[float], float] = field(
+        init=False, repr=False, compare=False
+    )
+
+    def __post_init__(self) -> None:
+        wp = np.asarray(self.waypoints, float).tolist()
+        seg_len = [math.dist(a, b) for a, b in itertools.pairwise(wp)]
+        object.__setattr__(self, "_polyline", (wp, seg_len, sum(seg_len)))
+
+    def min_distance(self, point: npt.ArrayLike) -> float:
+        """Smallest distance (m, in x, y) of the walked polyline from ``point``."""
+        p = np.asarray(point, float)[:2]
+        a, b = self.waypoints[:-1], self.waypoints[1:]
+        r = b - a
+        u = np.clip(np.sum((p - a) * r, axis=1) / np.maximum(np.sum(r * r, axis=1), 1e-30), 0, 1)
+        return float(np.min(np.hypot(*(a + u[:, None] * r - p).T)))
 
     def present(self, t: float) -> bool:
         """Whether the person is in the scene at time t, s."""
@@ -93,10 +109,8 @@ class Walker:
         heading : float, rad (direction of motion; kept when standing)
         """
         # Plain floats: a polyline has a handful of vertices and numpy's per-call overhead
-        # would dominate (this runs for every acquisition).
-        wp = self.waypoints.tolist()
-        seg_len = [math.dist(a, b) for a, b in itertools.pairwise(wp)]
-        total = sum(seg_len)
+        # would dominate (this runs for every acquisition); its segments are measured once.
+        wp, seg_len, total = self._polyline
         s = self.speed * max(t - self.enter, 0.0)
         if self.bounce:
             s = s % (2 * total)
@@ -202,8 +216,12 @@ class Crowd:
                 )
         return out
 
-    def scatterers(self, t: float) -> BodyScatterers:
+    def scatterers(self, t: float, walkers: npt.NDArray[np.int_] | None = None) -> BodyScatterers:
         """Body scatterers of the present people at time t.
+
+        ``walkers`` (indices into the crowd) limits the result to those people: the others
+        are treated as absent (a caller that knows they can never matter, e.g. a node far
+        from their whole path, skips their kinematics).
 
         Point k of a person at ``p`` with heading ``psi`` and speed ``v``:
 
@@ -216,15 +234,13 @@ class Crowd:
         """
         # The loop is over a handful of people (kinematics on each polyline); the points
         # themselves are handled as arrays.
-        rows = []
-        for w in self.walkers:
+        per = np.zeros((len(self.walkers), 6))
+        for i in range(len(self.walkers)) if walkers is None else walkers.tolist():
+            w = self.walkers[i]
             if w.present(t):
                 pos, vel, psi = w.kinematics(t)
                 phase = 2 * math.pi * w.breathing_rate * t + w.breathing_phase
-                rows.append((1.0, pos[0], pos[1], psi, math.hypot(vel[0], vel[1]), math.sin(phase)))
-            else:
-                rows.append((0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-        per = np.array(rows, float).reshape(-1, 6)
+                per[i] = (1.0, pos[0], pos[1], psi, math.hypot(vel[0], vel[1]), math.sin(phase))
         here = per[:, 0] > 0
         sel = np.flatnonzero(here[self._person])
         person = self._person[sel]

@@ -140,7 +140,9 @@ def run(
     }
 
 
-def handover(n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1) -> dict[str, Any]:
+def handover(
+    n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1, walls: bool = True
+) -> dict[str, Any]:
     """One fusion center vs 4 cell workers + gateway on identical detections.
 
     Simulates ``seconds`` of a building of ``n`` nodes (no network: the node DSP's messages go
@@ -148,6 +150,8 @@ def handover(n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1)
     :func:`fusion_center.tracking.metrics.evaluate`; ``border_crossings`` counts the people's
     crossings of the 3 cell borders, so ``id_switches_cells`` per 100 crossings is an upper
     bound of the hand-over's ID switches (it includes the switches a single center makes too).
+    ``walls``: the trackers know the building's walls (:func:`uwbnet.scale_roles.wall_sight`),
+    as in ``uwbnet scale``.
     """
     from fusion_center.core import FusionCore
     from fusion_center.offline import make_tracker
@@ -163,7 +167,7 @@ def handover(n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1)
     from sim_nodes.building import building_length, building_scenario
     from sim_nodes.driver import SimulatedDriver
     from sim_nodes.network import SimNetwork
-    from uwbnet.scale_roles import CELL_MARGIN, PEOPLE_RANGE
+    from uwbnet.scale_roles import CELL_MARGIN, PEOPLE_RANGE, wall_sight
 
     scen = building_scenario(n, people, seed)
     net = SimNetwork(scen, seed, people_range=PEOPLE_RANGE)
@@ -184,6 +188,9 @@ def handover(n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1)
             core.add_node(infos[node])
         core.expected = frozenset(m)
     one.expected = frozenset(ids)
+    if walls:
+        for core in (one, *workers):
+            core.tracker.sight = wall_sight(scen)  # type: ignore[attr-defined]
     merger = HandoverMerger(cells)
     tracks_one: list[Any] = []
     tracks_cells: list[Any] = []
@@ -232,4 +239,5 @@ def handover(n: int = 24, people: int = 6, seconds: float = 40.0, seed: int = 1)
             100.0 * e4["id_switches"] / max(crossings, 1), 2
         ),
         "handovers": merger.handovers,
+        "walls": walls,
     }

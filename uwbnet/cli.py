@@ -67,7 +67,13 @@ def _load_scenario(name: str) -> Any:
 # --- commands --------------------------------------------------------------------------------
 
 
+# The live runtime (demo, simnode, fusion) runs numpy with one BLAS thread per process, set
+# before numpy loads: on a shared machine OpenBLAS's thread pool only spins against the other
+# processes (the simulator's small matrix products took 50x longer; docs/capacity.md).
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see above cmd_demo
     from rich.console import Console
 
     from uwbnet.demo import DemoConfig, run_demo
@@ -382,6 +388,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 
 def cmd_simnode(args: argparse.Namespace) -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see above cmd_demo
     from uwbnet.config import SimNodeFile, load_config
     from uwbnet.processes import run_simnode, stop_on_signals
 
@@ -391,6 +398,7 @@ def cmd_simnode(args: argparse.Namespace) -> int:
 
 
 def cmd_fusion(args: argparse.Namespace) -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see above cmd_demo
     from uwbnet.config import FusionFile, load_config
     from uwbnet.processes import run_fusion, stop_on_signals
 

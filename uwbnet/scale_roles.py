@@ -54,6 +54,20 @@ def cells(cfg: dict[str, Any]) -> Any:
     return StripCells.even(0.0, building_length(cfg["nodes"]), cfg["workers"])
 
 
+def wall_sight(scenario: Any) -> Any:
+    """The GM-PHD's wall-aware detection probability for a building: its walls, taken from
+    the building's description (the same every process rebuilds), not from truth."""
+    from fusion_center.tracking.walls import WallSightModel
+
+    return WallSightModel([w.start for w in scenario.walls], [w.end for w in scenario.walls])
+
+
+def _see_walls(fusion: Any, cfg: dict[str, Any]) -> None:
+    tracker = fusion.core.tracker
+    if hasattr(tracker, "sight"):
+        tracker.sight = wall_sight(building(cfg))
+
+
 def _session(cfg: dict[str, Any], *, router: bool = False) -> zenoh.Session:
     if router:
         return zenoh.open(session_config(mode="router", listen=[cfg["listen"]]))
@@ -92,6 +106,7 @@ def run_hub(cfg: dict[str, Any], stop: threading.Event) -> None:
         # launched: the people are where the scenario says when the measurement starts.
         epoch = time.time() + 0.5
         fusion = FusionService(session, FusionConfig(net=cfg["net"], track=single), epoch=epoch)
+        _see_walls(fusion, cfg)
         fusion.start()
         stack.callback(fusion.stop)
         if not single:
@@ -173,6 +188,7 @@ def run_worker(cfg: dict[str, Any], stop: threading.Event) -> None:
                 tracks_key=keys.cell_tracks_key(cfg["net"], cell),
             ),
         )
+        _see_walls(fusion, cfg)
         fusion.start()
         try:
             _ready(f"worker {cell}")

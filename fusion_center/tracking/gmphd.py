@@ -22,7 +22,7 @@ hypothesis density filter", IEEE Trans. Signal Process. 54(11), with
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -500,7 +500,15 @@ class GmPhdTracker(Tracker):
     def __init__(self, config: GmPhdConfig | None = None) -> None:
         self.config = config or GmPhdConfig()
         self._model_cache: dict[float, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        #: Optional factor (0..1) on a sensor's ``p_D`` at world positions ``xy``, e.g. the
+        #: walls in its line of sight (:class:`fusion_center.tracking.walls.WallSightModel`);
+        #: ``None``: sensors see through walls. Positions with a factor below 1 are left
+        #: out of the learned detection profiles.
+        self.sight: Callable[[SensorScan, FloatArray], FloatArray] | None = None
         self.reset()
+
+    def _sight(self, scan: SensorScan, xy: FloatArray) -> FloatArray:
+        return np.ones(xy.shape[0]) if self.sight is None else self.sight(scan, xy)
 
     def reset(self) -> None:
         self._mix = _Mixture.empty()
@@ -620,7 +628,7 @@ class GmPhdTracker(Tracker):
             pd = 1.0 - pd_frame  # frame[1] is the probability that no sensor detects
         else:
             pd_sensor = self.detection_probabilities.get(scan.sensor, cfg.detection_probability)
-            pd = np.where(visible[active], pd_sensor, pd_out)
+            pd = np.where(visible[active], pd_sensor, pd_out) * self._sight(scan, act.m[:, ::2])
             if act.w.size > 1 and cfg.occluded_factor < 1.0:
                 pd = pd * np.where(self._occluded(scan, act), cfg.occluded_factor, 1.0)
 
@@ -725,12 +733,13 @@ class GmPhdTracker(Tracker):
                     profile = np.full(edges.size + 1, cfg.detection_probability)
                     self.detection_profiles[scan.sensor] = profile
                 rbin = np.searchsorted(edges, np.linalg.norm(xy - scan.origin, axis=1))
-                pd_j = np.where(vis, profile[rbin], 0.0)
+                sight = self._sight(scan, xy)
+                pd_j = np.where(vis, profile[rbin], 0.0) * sight
                 if cfg.occluded_factor < 1.0 and mix.w.size > 1:
                     pd_j = pd_j * np.where(self._occluded(scan, mix), cfg.occluded_factor, 1.0)
                 pd_js[:, i] = pd_j
                 if cfg.adapt_detection:
-                    seen = vis[heavy]
+                    seen = (vis & (sight >= 1.0))[heavy]
                     if seen.any():
                         hit = near[:, owner == i].any(axis=1)[seen]
                         hb = rbin[heavy][seen]

@@ -17,7 +17,8 @@ WALLS = WallSightModel([[10.0, 0.0], [0.0, 0.0]], [[10.0, 8.0], [0.0, 8.0]], fac
 
 def test_crossings_count_walls_between_sensor_and_position() -> None:
     n = WALLS.crossings([6.0, 4.0], [[8.0, 4.0], [12.0, 4.0], [12.0, 12.0], [-1.0, 4.0]])
-    # Same room; through the partition; past its end (y = 9.3 > 8 at x = 10); through the outer wall.
+    # Same room; through the partition; past its end (y = 9.3 > 8 at x = 10); through the
+    # outer wall.
     assert n.tolist() == [0, 1, 0, 1]
     # A sensor mounted on the outer wall does not look through it.
     assert WALLS.crossings([0.0, 4.0], [[5.0, 4.0]]).tolist() == [0]

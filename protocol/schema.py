@@ -214,14 +214,12 @@ def optional(conv: Conv) -> Any:
 def encode_fields(obj: Any) -> dict[str, Any]:
     """Encode the wire fields of a dataclass instance, in declaration order, then its extras."""
     out: dict[str, Any] = {}
-    for f in dataclasses.fields(obj):
-        conv = f.metadata.get("wire")
-        if conv is None:
+    plan, _ = _field_plan(type(obj))
+    for fname, conv, optional in plan:
+        value = getattr(obj, fname)
+        if value is None and optional:
             continue
-        value = getattr(obj, f.name)
-        if value is None and f.metadata.get("optional"):
-            continue
-        out[f.name] = conv.encode(value)
+        out[fname] = conv.encode(value)
     extra = getattr(obj, "extra", None)
     if extra:
         for k, v in extra.items():

@@ -80,6 +80,24 @@ def test_noise_std_matches_the_snr_definition(radar: MSequenceRadar) -> None:
     assert radar.receive_noise_std / radar.noise_std > np.sqrt(4095)
 
 
+def test_noise_bins_are_independent_standard_circular_gaussians(radar: MSequenceRadar) -> None:
+    # The Box-Muller draws must give what two standard_normal draws per bin gave.
+    rng = np.random.default_rng(5)
+    v = np.stack([radar.noise_spectrum(rng, 2) for _ in range(200)])  # (200, 2, n_bins)
+    scale = radar._noise_scale
+    band = scale > 0.5 * scale.max()
+    z = v[..., band] / scale[band]
+    re, im = z.real.ravel().astype(float), z.imag.ravel().astype(float)
+    assert re.var() == pytest.approx(1.0, rel=0.02) and im.var() == pytest.approx(1.0, rel=0.02)
+    assert abs(np.mean(re * im)) < 0.01 and abs(re.mean()) < 0.01
+    # Gaussian shape: kurtosis 3 and the two-sided 3-sigma tail of 0.27 %.
+    assert np.mean(re**4) / re.var() ** 2 == pytest.approx(3.0, abs=0.05)
+    assert np.mean(np.abs(np.concatenate([re, im])) > 3.0) == pytest.approx(0.0027, rel=0.15)
+    # Bins and receivers are uncorrelated.
+    assert abs(np.mean(z[:, 0, 1:].real * z[:, 0, :-1].real)) < 0.01
+    assert abs(np.mean(z[:, 0].real * z[:, 1].real)) < 0.01
+
+
 def test_reference_target_reaches_the_configured_snr() -> None:
     radar = MSequenceRadar(RadarConfig(snr_db=20.0))
     d = radar.config.snr_reference_distance

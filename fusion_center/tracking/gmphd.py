@@ -103,6 +103,12 @@ class GmPhdConfig:
         measurements it claims, so that no birth follows either.
     confirm_steps : int
         Steps with summed weight above ``extract_threshold`` before a label is reported.
+    confirm_time : float
+        Time (s) a label must also have spent above ``extract_threshold`` before it is
+        reported, summed over its steps. A step count alone means a different time at each
+        frame rate (3 steps are 60 ms at 50 Hz, 150 ms at 20 Hz); false estimates that come
+        from people themselves (a swapped pairing of two people's ranges, one body part seen
+        at a wrong angle) persist for a few frames, a person for seconds.
     reid_time, reid_radius, reid_speed : float
         A new track confirmed within ``reid_time`` (s) of a confirmed track's loss and within
         ``reid_radius + reid_speed * dt`` (m, m/s) of where it was last reported continues its
@@ -182,6 +188,8 @@ class GmPhdConfig:
     keep_threshold: float = 0.4
     split_threshold: float = 0.2
     confirm_steps: int = 3
+    confirm_time: float = 0.5
+    learn_frame_miss: bool = True
     coast_time: float = 0.25
     reid_time: float = 2.0
     reid_radius: float = 0.5
@@ -516,6 +524,10 @@ class GmPhdTracker(Tracker):
         self._t: float | None = None
         self._next_label = 1
         self._hits: dict[int, int] = {}
+        self._strong_time: dict[int, float] = {}
+        #: Learned probability that no sensor detects an established track in a frame.
+        self.frame_miss = 1.0 - self.config.max_detection_probability
+        self._t_extract: float | None = None
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
         self._dup_count: dict[tuple[int, int], int] = {}
@@ -732,7 +744,8 @@ class GmPhdTracker(Tracker):
                 if profile is None:
                     profile = np.full(edges.size + 1, cfg.detection_probability)
                     self.detection_profiles[scan.sensor] = profile
-                rbin = np.searchsorted(edges, np.linalg.norm(xy - scan.origin, axis=1))
+                dist = np.linalg.norm(xy - scan.origin, axis=1)
+                rbin = np.searchsorted(edges, dist)
                 sight = self._sight(scan, xy)
                 pd_j = np.where(vis, profile[rbin], 0.0) * sight
                 if cfg.occluded_factor < 1.0 and mix.w.size > 1:
@@ -774,6 +787,17 @@ class GmPhdTracker(Tracker):
         log_miss = np.log(np.maximum(1.0 - pd_js, eps))
         detect = np.exp(log_pd @ cells.T + log_miss @ (1.0 - cells).T)  # (J, K)
         miss = np.exp(log_miss.sum(axis=1))
+        if cfg.learn_frame_miss and mix.w.size:
+            # Sensors' misses are not independent (a person standing still, shadowed, in a far
+            # corner is missed by all for a while): the probability that no sensor detects a
+            # person is at least the learned rate of frames in which an established track
+            # (weight > 0.5, as for ``adapt_detection``) in some sensor's view had no
+            # estimate near it from any sensor.
+            seen_by = heavy & (pd_js > 0.0).any(axis=1)
+            if cfg.adapt_detection and seen_by.any():
+                unseen = ~near[seen_by[heavy]].any(axis=1)
+                self.frame_miss += cfg.adapt_rate * (float(np.mean(unseen)) - self.frame_miss)
+            miss = np.where(pd_js.any(axis=1), np.maximum(miss, self.frame_miss), miss)
         # Each sensor's false estimates spread over its own view: the intensities add up; a
         # fused measurement of several sensors is clutter only if their false alarms coincide.
         kappa0 = sum(self._clutter_intensity(scan) for scan in scans)
@@ -1001,6 +1025,7 @@ class GmPhdTracker(Tracker):
                 mix.label[mix.label == b] = a
                 self._confirmed.discard(b)
                 self._hits.pop(b, None)
+                self._strong_time.pop(b, None)
 
     def _extract(self, t: float) -> TrackerOutput:
         """Labelled estimates: per label, the heaviest component; sum of weights as ``w``."""
@@ -1010,6 +1035,8 @@ class GmPhdTracker(Tracker):
             self._lost.update(self._last_report)
             self._last_report = {}
             self._hits.clear()
+            self._strong_time.clear()
+            self._t_extract = t
             self._confirmed.clear()
             self._confirmed_arr = np.zeros(0, dtype=np.int64)
             return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
@@ -1043,18 +1070,26 @@ class GmPhdTracker(Tracker):
         labels = lab[starts]
         strong = label_w >= cfg.extract_threshold
 
-        hits = {}
+        hits, strong_time = {}, {}
+        dt = 0.0 if self._t_extract is None else max(t - self._t_extract, 0.0)
+        self._t_extract = t
         for label, is_strong in zip(labels.tolist(), strong.tolist(), strict=True):
             hits[label] = self._hits.get(label, 0) + int(is_strong)
-        self._hits = hits
+            strong_time[label] = self._strong_time.get(label, 0.0) + dt * is_strong
+        self._hits, self._strong_time = hits, strong_time
         confirmed = {lb for lb in self._confirmed if lb in hits}
         newly = [lb for lb, h in hits.items() if h >= cfg.confirm_steps and lb not in confirmed]
         for lb in newly:
+            # A track lost a moment ago that re-appears where it was is not a new person:
+            # it is confirmed at once; any other new label waits for ``confirm_time``.
             old = self._reidentify(t, mix.m[heads[labels == lb][0]])
+            if old is None and strong_time[lb] < cfg.confirm_time:
+                continue
             if old is not None:
                 mix.label[mix.label == lb] = old
                 labels[labels == lb] = old
                 hits[old] = hits.pop(lb)
+                strong_time[old] = strong_time.pop(lb)
                 lb = old
             confirmed.add(lb)
         self._confirmed = confirmed

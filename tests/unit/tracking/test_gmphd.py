@@ -182,3 +182,48 @@ def test_person_unseen_for_a_moment_keeps_its_id(rng: np.random.Generator) -> No
     assert after == before
     # ... and a disappearing person is still dropped: no track where it was, 1 s later.
     assert all(nearest_id(o, X[k_before, 2], radius=0.3) is None for o in outputs[-5:])
+
+
+@pytest.mark.parametrize("frame", [0.02, 0.05])
+def test_new_label_waits_for_confirm_time_at_any_frame_rate(
+    rng: np.random.Generator, frame: float
+) -> None:
+    """A person is reported once its label was strong for ``confirm_time``, whatever the rate."""
+    cfg = GmPhdConfig(clutter_rate=1.0, surveillance_area=80.0, confirm_time=0.5)
+    tracker = GmPhdTracker(cfg)
+    sensors = sensors_around(10.0, 8.0)
+    xy = np.array([[5.0, 4.0]])
+    first = None
+    for k in range(int(2.0 / frame)):
+        t = k * frame
+        out = tracker.step(t + frame, [detect(rng, s, t, xy, clutter=0.0) for s in sensors])
+        if first is None and nearest_id(out, xy[0]) is not None:
+            first = t + frame
+    assert first is not None
+    # Born from the first frame, strong from the next few: confirmed 0.5 s later.
+    assert 0.5 <= first <= 0.5 + 6 * frame
+
+
+def test_misses_shared_by_all_sensors_keep_the_track(rng: np.random.Generator) -> None:
+    """Every sensor misses a person in the same frames (standing still, shadowed): the learned
+    probability that no sensor detects keeps the track, where independent misses drop it."""
+    sensors = sensors_around(10.0, 8.0)
+    times, X = crossing_truth(8.0)
+    xy_all = X[:, 2:3]  # one walker
+    reported = {}
+    for learn in (True, False):
+        tracker = GmPhdTracker(
+            GmPhdConfig(clutter_rate=1.0, surveillance_area=80.0, learn_frame_miss=learn)
+        )
+        shown = []
+        for k, t in enumerate(times):
+            # seen by all for 1 s, then in turn 4 frames by all and 4 frames by none
+            seen = t < 1.0 or (k // 4) % 2 == 0
+            xy = xy_all[k] if seen else np.zeros((0, 2))
+            out = tracker.step(t + FRAME, [detect(rng, s, t, xy, pd=0.95) for s in sensors])
+            shown.append(nearest_id(out, xy_all[k, 0], radius=0.6) is not None)
+        reported[learn] = float(np.mean(shown[int(4.0 / FRAME) :]))
+        if learn:
+            assert 0.1 < tracker.frame_miss < 0.7
+    assert reported[True] >= 0.95
+    assert reported[False] < 0.9

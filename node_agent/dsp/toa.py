@@ -139,7 +139,12 @@ def _log_noise_cdf(eta: FloatArray, sigma: FloatArray, complex_input: bool) -> F
     return np.log1p(-erfc(x / math.sqrt(2.0)))
 
 
-def _refine(env: FloatArray, idx: npt.NDArray[np.intp], width: float | None = None) -> FloatArray:
+def _refine(
+    env: FloatArray,
+    idx: npt.NDArray[np.intp],
+    width: float | None = None,
+    sigma: FloatArray | None = None,
+) -> FloatArray:
     """Fractional peak position of the pulse whose envelope peaks at sample ``idx``.
 
     ``width`` None: a parabola through the log-envelope at ``idx - 1 .. idx + 1`` (exact for
@@ -165,13 +170,28 @@ def _refine(env: FloatArray, idx: npt.NDArray[np.intp], width: float | None = No
         e = env[rows[:, None], cols]
         w = e * e * (np.abs(cols - i[:, None]) == np.abs(k))  # clipped edges get no weight
         y = np.log(np.maximum(e, tiny)) + k * k / (2.0 * width * width)
-        sw = w.sum(axis=1)
-        kbar = (w * k).sum(axis=1) / sw
-        ybar = (w * y).sum(axis=1) / sw
-        skk = (w * (k - kbar[:, None]) ** 2).sum(axis=1)
-        sky = (w * (k - kbar[:, None]) * (y - ybar[:, None])).sum(axis=1)
+
+        def fit(w: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+            sw = w.sum(axis=1)
+            kbar = (w * k).sum(axis=1) / sw
+            ybar = (w * y).sum(axis=1) / sw
+            skk = (w * (k - kbar[:, None]) ** 2).sum(axis=1)
+            sky = (w * (k - kbar[:, None]) * (y - ybar[:, None])).sum(axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                slope = np.nan_to_num(sky / skk)
+            return slope, ybar - slope * kbar
+
+        slope, c0 = fit(w, y)
+        if sigma is not None:
+            # a later path overlapping the pulse lifts its trailing samples above the model:
+            # then only the leading edge and the peak (which the later path touches least)
+            model = np.exp(c0[:, None] + slope[:, None] * k - k * k / (2.0 * width * width))
+            excess = np.max(np.where(k > 0, e - model, -np.inf), axis=1) > 3.0 * sigma
+            if np.any(excess):
+                s2, c2 = fit(w[excess] * (k <= 0), y[excess])
+                slope[excess], c0[excess] = s2, c2
         with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.nan_to_num(width * width * sky / skk)
+            frac = np.nan_to_num(width * width * slope)
         frac = np.clip(frac, -1.0, 1.0)
         return np.where(inside, i + frac, idx.astype(np.float64))
     a = np.log(np.maximum(env[rows, i - 1], tiny))
@@ -292,7 +312,7 @@ class ToaEstimator(ABC):
         self, env: FloatArray, peak: npt.NDArray[np.intp], sigma: FloatArray, quality: FloatArray
     ) -> ToaEstimate:
         smooth = self._complex or self.radar.f_low <= 0.0
-        index = _refine(env, peak, self.pulse_width if smooth else None)
+        index = _refine(env, peak, self.pulse_width if smooth else None, sigma)
         amp = env[np.arange(env.shape[0]), peak]
         return ToaEstimate(
             toa=index / self.radar.fs,

@@ -49,6 +49,11 @@ _CHI2_1_MEDIAN = 0.454936423119572
 #: by more than this many noise sigma (a noise ripple on one pulse's edge rarely does).
 RESOLVE_DIP = 4.0
 
+#: ... and when it reaches this fraction of the stronger one (-9 dB): a real system pulse has
+#: sidelobes next to its main lobe (a band-limited pulse's first sidelobe is about -13 dB),
+#: which must not pass for an earlier path.
+RESOLVE_LEVEL = 0.35
+
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class ToaEstimate:
@@ -214,8 +219,11 @@ def _peak_after(
 
     Without ``dip``: the strongest envelope sample in ``start .. start + width`` (``width``
     spans a pulse's main lobe). With ``dip`` (rows,): the first local maximum in that span
-    that the envelope falls below by more than ``dip`` before the strongest sample (a path
-    resolved from a stronger one arriving within the lobe), else the strongest sample. A
+    that the envelope falls below by more than ``dip`` before the strongest sample and that
+    reaches ``RESOLVE_LEVEL`` of it (a path resolved from a stronger one arriving within the
+    lobe, not a sidelobe of the system pulse), or any local maximum before the strongest
+    sample when that one lies on the rising edge of a later pulse (at the end of the span,
+    the envelope still rising), else the strongest sample. A
     reflection arriving a fraction of a pulse width after the direct path and stronger than
     it would otherwise take the first path's place; the dip (a few noise sigma) keeps a
     noise ripple on a rising edge from passing for a path. Only for smooth envelopes
@@ -237,7 +245,13 @@ def _peak_after(
     # lowest envelope from each sample up to the strongest one (reverse running minimum)
     upto = np.where(cols <= top[:, None], w, np.inf)
     low = np.minimum.accumulate(upto[:, ::-1], axis=1)[:, ::-1]
-    resolved = local & (cols < top[:, None]) & (w - low > np.asarray(dip)[:, None])
+    strong = w >= RESOLVE_LEVEL * w[rows[:, 0], top][:, None]
+    resolved = local & strong & (cols < top[:, None]) & (w - low > np.asarray(dip)[:, None])
+    # the lobe's strongest sample on the rising edge of a later pulse (the envelope still
+    # rises past the span): any earlier local maximum is the first path's own peak
+    after = env[rows[:, 0], np.minimum(idx[:, -1] + 1, n - 1)]
+    rising = (top == w.shape[1] - 1) & (after > w[:, -1])
+    resolved |= local & (cols < top[:, None]) & rising[:, None]
     pick = np.where(resolved.any(axis=1), np.argmax(resolved, axis=1), top)
     return idx[rows[:, 0], pick]
 

@@ -1,7 +1,9 @@
 """Localization of one mobile node from its RTToA ranges to anchors, with NLOS mitigation.
 
-Per ranging round (one ``detections`` message with ``links``): each anchor's recent ranges go
-through the eq. (6) test (:class:`~fusion_center.localization.nlos.MseNlosTest`); LOS anchors
+Per ranging round (one ``detections`` message with ``links``): each anchor's recent ranges,
+first-path SNRs and per-impulse-response decisions go through the NLOS test (eq. (6),
+:class:`~fusion_center.localization.nlos.MseNlosTest`, combined with the links' own evidence
+by :class:`~fusion_center.localization.nlos.EvidenceNlosTest`); LOS anchors
 enter the snapshot estimator with their own range variance, NLOS anchors only with a large
 one (``nlos_std``: they still resolve the mirror ambiguity of two LOS anchors, but no longer
 pull the fix); the fix updates a position Kalman filter whose state is the published pose.

@@ -150,7 +150,7 @@ def evaluate_localization(
         ``rmse`` (tracked pose), ``fix_rmse`` (snapshot fixes), ``fix_rate`` (share of rounds
         with a fix), ``crlb`` (RMS of the position error bound over the rounds, every link at
         its double-sided RTToA range bound), ``nlos_detection`` and ``nlos_false_alarm`` (the
-        eq. (6) decisions vs the true link states), m and fractions.
+        NLOS test's decisions vs the true link states), m and fractions.
     """
     truth = read_node_truth(recording)
     if not truth:

@@ -70,7 +70,9 @@ class PoseCore:
             self.counters.duplicates += 1
             return None
         self._last_t[det.src] = det.t
-        known = {a: (lk.range, lk.std) for a, lk in links.items() if a in self.anchors}
+        known = {
+            a: (lk.range, lk.std, lk.los, lk.snr_db) for a, lk in links.items() if a in self.anchors
+        }
         self.counters.unknown_anchor += len(links) - len(known)
         self.unknown_anchors |= set(links) - set(self.anchors)
         if not known:

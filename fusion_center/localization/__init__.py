@@ -16,11 +16,12 @@ from .estimators import (
 )
 from .kalman import PositionKalmanTracker, RangeKalmanTracker
 from .mobile import LocalizerConfig, PoseResult, RangingLocalizer
-from .nlos import MseNlosTest
+from .nlos import EvidenceNlosTest, MseNlosTest
 
 __all__ = [
     "LOCATORS",
     "ApproximateMlLocator",
+    "EvidenceNlosTest",
     "LinearLeastSquaresLocator",
     "LocalizerConfig",
     "Locator",

@@ -1,7 +1,9 @@
 """Localization of one mobile node from its RTToA ranges to anchors, with NLOS mitigation.
 
-Per ranging round (one ``detections`` message with ``links``): each anchor's recent ranges go
-through the eq. (6) test (:class:`~fusion_center.localization.nlos.MseNlosTest`); LOS anchors
+Per ranging round (one ``detections`` message with ``links``): each anchor's recent ranges,
+first-path SNRs and per-impulse-response decisions go through the NLOS test (eq. (6),
+:class:`~fusion_center.localization.nlos.MseNlosTest`, combined with the links' own evidence
+by :class:`~fusion_center.localization.nlos.EvidenceNlosTest`); LOS anchors
 enter the snapshot estimator with their own range variance, NLOS anchors only with a large
 one (``nlos_std``: they still resolve the mirror ambiguity of two LOS anchors, but no longer
 pull the fix); the fix updates a position Kalman filter whose state is the published pose.
@@ -14,6 +16,7 @@ Without mitigation every anchor enters with its LOS variance (the baseline).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -23,7 +26,7 @@ import numpy.typing as npt
 
 from .estimators import LOCATORS, PositionFix, horizontal_ranges
 from .kalman import PositionKalmanTracker
-from .nlos import MseNlosTest
+from .nlos import EvidenceNlosTest, MseNlosTest
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -42,6 +45,9 @@ class LocalizerConfig:
     nlos_std : standard deviation given to an NLOS anchor's range, m.
     window : ranges per anchor kept for the test.
     test : the eq. (6) test.
+    evidence : the eq. (6) test combined with the links' first-path power and per-impulse-
+        response decisions (:class:`~.nlos.EvidenceNlosTest`, its ``mse`` replaced by
+        ``test``); None: eq. (6) alone.
     q : acceleration noise density of the position filter, m²/s³.
     gate : innovation gate of a single range, standard deviations (0: off).
     """
@@ -51,6 +57,7 @@ class LocalizerConfig:
     nlos_std: float = 1.5
     window: int = 30
     test: MseNlosTest = field(default_factory=MseNlosTest)
+    evidence: EvidenceNlosTest | None = field(default_factory=EvidenceNlosTest)
     q: float = 0.5
     gate: float = 4.0
 
@@ -106,23 +113,37 @@ class RangingLocalizer:
         self.height = float(height)
         self.locator = LOCATORS[self.config.method]()
         self.tracker = PositionKalmanTracker(self.config.q)
-        self._history: dict[str, deque[tuple[float, float]]] = {}
+        # per anchor: (t, range, snr_db, per-impulse-response NLOS flag) of recent rounds
+        self._history: dict[str, deque[tuple[float, float, float, bool]]] = {}
+        ev = self.config.evidence
+        self._evidence = None if ev is None else dataclasses.replace(ev, mse=self.config.test)
         self._yaw = 0.0
 
     def los_decisions(self) -> dict[str, bool]:
-        """The current eq. (6) decision of every anchor with a history (True: LOS).
+        """The current NLOS decision of every anchor with a history (True: LOS): eq. (6),
+        or with ``evidence`` the combined test.
 
         Anchors ranged at the same times (the usual case: every anchor in every round) are
         tested together in one least-squares solve."""
         if not self.config.mitigate:
             return dict.fromkeys(self._history, True)
+        hist = {a: np.array(h, float).reshape(-1, 4) for a, h in self._history.items()}
+        budget = float("nan")
+        if self._evidence is not None:
+            budget = self._evidence.calibrate(
+                [h[:, 2] for h in hist.values()], [h[:, 1] for h in hist.values()]
+            )
         groups: dict[tuple[float, ...], list[str]] = {}
-        for aid, hist in self._history.items():
-            groups.setdefault(tuple(t for t, _ in hist), []).append(aid)
+        for aid, h in hist.items():
+            groups.setdefault(tuple(h[:, 0]), []).append(aid)
         out = {}
         for times, ids in groups.items():
-            r = np.array([[r for _, r in self._history[a]] for a in ids]).T
-            nlos = self.config.test.decide(np.array(times), r)
+            cols = np.stack([hist[a] for a in ids], axis=2)  # (N, 4, k)
+            t = np.array(times)
+            if self._evidence is None:
+                nlos = self.config.test.decide(t, cols[:, 1])
+            else:
+                nlos = self._evidence.decide(t, cols[:, 1], cols[:, 2], cols[:, 3] > 0.5, budget)
             out.update(zip(ids, (not v for v in nlos), strict=True))
         return out
 
@@ -149,21 +170,26 @@ class RangingLocalizer:
             out[np.argmax(z)] = True
         return out
 
-    def step(self, t: float, links: dict[str, tuple[float, float]]) -> PoseResult:
+    def step(self, t: float, links: dict[str, tuple[float, ...]]) -> PoseResult:
         """One ranging round.
 
         Parameters
         ----------
         t : float
             Time, s.
-        links : dict anchor id -> (range, std)
-            3-D first-path distance to each anchor, m, and its standard deviation, m. Anchors
-            not in :attr:`anchors` are ignored.
+        links : dict anchor id -> (range, std[, los, snr_db])
+            3-D first-path distance to each anchor, m, its standard deviation, m, and
+            optionally the per-impulse-response LOS decision and the first-path SNR, dB
+            (``detections.links``; without them: LOS and unknown). Anchors not in
+            :attr:`anchors` are ignored.
         """
         ids = [a for a in links if a in self.anchors and math.isfinite(links[a][0])]
         for aid in ids:
             hist = self._history.setdefault(aid, deque(maxlen=self.config.window))
-            hist.append((t, float(links[aid][0])))
+            link = links[aid]
+            los = bool(link[2]) if len(link) > 2 else True
+            snr = float(link[3]) if len(link) > 3 else float("nan")
+            hist.append((t, float(link[0]), snr, float(not los)))
         los_all = self.los_decisions()
         los = {a: los_all.get(a, True) for a in ids}
         pos = np.array([self.anchors[a] for a in ids], float).reshape(-1, 3)

@@ -31,6 +31,18 @@ from .geometry import RadarParams
 _EDGE = math.sqrt(math.log(10.0))
 
 
+def pulse_sigma(radar: RadarParams, *, complex_input: bool) -> float:
+    """Envelope sigma (s) of the band's model pulse (:func:`band_pulse`): a Gaussian
+    spectrum 10 dB down at the band edges, :math:`\\sigma_t = \\sqrt{\\ln 10} / (2 \\pi
+    B_{1/2})` with :math:`B_{1/2}` half the band (``f_high`` for a real baseband radar, a
+    low-pass from 0 Hz)."""
+    if complex_input or radar.f_low > 0.0:
+        half_band = 0.5 * radar.bandwidth
+    else:
+        half_band = radar.f_high
+    return _EDGE / (2.0 * math.pi * half_band)
+
+
 def band_pulse(radar: RadarParams, *, complex_input: bool) -> npt.NDArray:
     """Model pulse of the band, sampled at ``radar.fs``, peak 1, truncated at 4 sigma.
 
@@ -45,13 +57,8 @@ def band_pulse(radar: RadarParams, *, complex_input: bool) -> npt.NDArray:
     ndarray, float64 (real input) or complex128 (complex input), shape (2 K + 1,)
         The pulse at sample offsets ``-K..K``.
     """
-    if complex_input or radar.f_low > 0.0:
-        half_band = 0.5 * radar.bandwidth
-        f0 = 0.5 * (radar.f_low + radar.f_high)
-    else:  # real baseband: a low-pass from 0 Hz, its -10 dB edge at f_high
-        half_band = radar.f_high
-        f0 = 0.0
-    sigma_t = _EDGE / (2.0 * math.pi * half_band)
+    sigma_t = pulse_sigma(radar, complex_input=complex_input)
+    f0 = 0.5 * (radar.f_low + radar.f_high) if complex_input or radar.f_low > 0.0 else 0.0
     k = math.ceil(4.0 * sigma_t * radar.fs)
     t = np.arange(-k, k + 1) / radar.fs
     env = np.exp(-0.5 * (t / sigma_t) ** 2)

@@ -113,11 +113,12 @@ class FirstPathRanger:
         band = self._filter(is_complex)
         y = band.apply(h) if band is not None else h
         env = envelope(y)
-        est = self._toa.estimate_envelope(env, complex_input=is_complex)
+        matched = band is not None
+        est = self._toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
         shape_est = (
             est
             if self.method == "adaptive"
-            else self._shape_toa.estimate_envelope(env, complex_input=is_complex)
+            else self._shape_toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
         )
         # the shape features need the envelope, not a real signal's rectified oscillation:
         # the analytic signal's magnitude, whose noise is Rayleigh with the same sigma

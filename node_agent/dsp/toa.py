@@ -16,10 +16,13 @@ Every estimator returns a :class:`ToaEstimate`: the delay of the first path in s
 sample 0 (add ``t0`` for the time after emission), refined to a fraction of a sample, its
 peak signal-to-noise ratio and a quality figure in [0, 1].
 
-Detected first paths are placed on the strongest envelope sample within two pulse widths
-(:math:`2 / B`) after the threshold crossing, refined by a parabola through the log-envelope
-(exact for a Gaussian pulse): a crossing of a low threshold on the rising edge of a strong
-pulse alone would be early by a good part of the pulse width.
+Detected first paths are placed on the peak of the pulse whose rising edge crossed the
+threshold, refined by a parabola through the log-envelope (exact for a Gaussian pulse): a
+crossing of a low threshold on the rising edge of a strong pulse alone would be early by a
+good part of the pulse width. That peak is the first local maximum within two pulse widths
+(:math:`2 / B`) after the crossing that is resolved from a later, stronger one (the
+envelope dips by ``RESOLVE_DIP`` noise sigma between them), else the strongest sample
+there (see :func:`_peak_after`).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import erfc, erfcinv, ndtr
 
+from .band_filter import pulse_sigma
 from .geometry import RadarParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -40,6 +44,15 @@ FloatArray = npt.NDArray[np.float64]
 # chi-square variable with one degree of freedom for real noise
 _RAYLEIGH_MEDIAN = 2.0 * math.log(2.0)
 _CHI2_1_MEDIAN = 0.454936423119572
+
+#: A path is resolved from a stronger one right after it when the envelope dips between them
+#: by more than this many noise sigma (a noise ripple on one pulse's edge rarely does).
+RESOLVE_DIP = 4.0
+
+#: ... and when it reaches this fraction of the stronger one (-9 dB): a real system pulse has
+#: sidelobes next to its main lobe (a band-limited pulse's first sidelobe is about -13 dB),
+#: which must not pass for an earlier path.
+RESOLVE_LEVEL = 0.35
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -131,16 +144,61 @@ def _log_noise_cdf(eta: FloatArray, sigma: FloatArray, complex_input: bool) -> F
     return np.log1p(-erfc(x / math.sqrt(2.0)))
 
 
-def _refine(env: FloatArray, idx: npt.NDArray[np.intp]) -> FloatArray:
-    """Fractional peak position: parabola through the log-envelope at ``idx - 1 .. idx + 1``.
+def _refine(
+    env: FloatArray,
+    idx: npt.NDArray[np.intp],
+    width: float | None = None,
+    sigma: FloatArray | None = None,
+) -> FloatArray:
+    """Fractional peak position of the pulse whose envelope peaks at sample ``idx``.
 
-    Exact for a Gaussian pulse envelope; the offset is clipped to half a sample (the
-    sample is a local maximum, so the true peak lies within half a sample of it).
+    ``width`` None: a parabola through the log-envelope at ``idx - 1 .. idx + 1`` (exact for
+    a Gaussian pulse of any width; the offset is clipped to half a sample, the sample being
+    a local maximum). ``width`` given (the known envelope sigma of the system pulse, in
+    samples): the delay of that Gaussian pulse fitted to the samples within
+    ``max(1, ceil(width))`` of ``idx`` by weighted least squares on the log-envelope,
+    :math:`\\ln e_k + k^2 / (2 w^2) = c + k \\tau / w^2`, weights :math:`e_k^2` (the
+    log of a sample of SNR :math:`e_k / \\sigma` has variance :math:`\\sigma^2 / e_k^2`):
+    at high SNR the maximum-likelihood delay of the known pulse (the matched filter's
+    peak, interpolated), without the parabola's third unknown (its curvature), which on a
+    pulse one or two samples wide costs about half the delay information.
     """
     n = env.shape[1]
     rows = np.arange(env.shape[0])
     i = np.clip(idx, 1, n - 2)
     tiny = 1e-300
+    inside = (idx >= 1) & (idx <= n - 2)
+    if width is not None and width > 0.0:
+        half = max(1, math.ceil(width))
+        k = np.arange(-half, half + 1)
+        cols = np.clip(i[:, None] + k[None, :], 0, n - 1)
+        e = env[rows[:, None], cols]
+        w = e * e * (np.abs(cols - i[:, None]) == np.abs(k))  # clipped edges get no weight
+        y = np.log(np.maximum(e, tiny)) + k * k / (2.0 * width * width)
+
+        def fit(w: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+            sw = w.sum(axis=1)
+            kbar = (w * k).sum(axis=1) / sw
+            ybar = (w * y).sum(axis=1) / sw
+            skk = (w * (k - kbar[:, None]) ** 2).sum(axis=1)
+            sky = (w * (k - kbar[:, None]) * (y - ybar[:, None])).sum(axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                slope = np.nan_to_num(sky / skk)
+            return slope, ybar - slope * kbar
+
+        slope, c0 = fit(w, y)
+        if sigma is not None:
+            # a later path overlapping the pulse lifts its trailing samples above the model:
+            # then only the leading edge and the peak (which the later path touches least)
+            model = np.exp(c0[:, None] + slope[:, None] * k - k * k / (2.0 * width * width))
+            excess = np.max(np.where(k > 0, e - model, -np.inf), axis=1) > 3.0 * sigma
+            if np.any(excess):
+                s2, c2 = fit(w[excess] * (k <= 0), y[excess])
+                slope[excess], c0[excess] = s2, c2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.nan_to_num(width * width * slope)
+        frac = np.clip(frac, -1.0, 1.0)
+        return np.where(inside, i + frac, idx.astype(np.float64))
     a = np.log(np.maximum(env[rows, i - 1], tiny))
     b = np.log(np.maximum(env[rows, i], tiny))
     c = np.log(np.maximum(env[rows, i + 1], tiny))
@@ -148,17 +206,54 @@ def _refine(env: FloatArray, idx: npt.NDArray[np.intp]) -> FloatArray:
     with np.errstate(divide="ignore", invalid="ignore"):
         frac = np.where(den < 0.0, 0.5 * (a - c) / den, 0.0)
     frac = np.clip(np.nan_to_num(frac), -0.5, 0.5)
-    inside = (idx >= 1) & (idx <= n - 2)
     return np.where(inside, i + frac, idx.astype(np.float64))
 
 
-def _peak_after(env: FloatArray, start: npt.NDArray[np.intp], width: int) -> npt.NDArray[np.intp]:
-    """Per row, the strongest envelope sample in ``start .. start + width`` (the pulse whose
-    rising edge crossed the threshold; ``width`` spans its main lobe)."""
+def _peak_after(
+    env: FloatArray,
+    start: npt.NDArray[np.intp],
+    width: int,
+    dip: FloatArray | None = None,
+) -> npt.NDArray[np.intp]:
+    """Per row, the peak of the pulse whose rising edge crossed the threshold at ``start``.
+
+    Without ``dip``: the strongest envelope sample in ``start .. start + width`` (``width``
+    spans a pulse's main lobe). With ``dip`` (rows,): the first local maximum in that span
+    that the envelope falls below by more than ``dip`` before the strongest sample and that
+    reaches ``RESOLVE_LEVEL`` of it (a path resolved from a stronger one arriving within the
+    lobe, not a sidelobe of the system pulse), or any local maximum before the strongest
+    sample when that one lies on the rising edge of a later pulse (at the end of the span,
+    the envelope still rising), else the strongest sample. A
+    reflection arriving a fraction of a pulse width after the direct path and stronger than
+    it would otherwise take the first path's place; the dip (a few noise sigma) keeps a
+    noise ripple on a rising edge from passing for a path. Only for smooth envelopes
+    (complex baseband, real baseband): a real band-pass signal's rectified carrier has a
+    local maximum every half carrier period.
+    """
     n = env.shape[1]
     idx = np.clip(start[:, None] + np.arange(width + 1)[None, :], 0, n - 1)
     rows = np.arange(env.shape[0])[:, None]
-    return idx[rows[:, 0], np.argmax(env[rows, idx], axis=1)]
+    w = env[rows, idx]
+    top = np.argmax(w, axis=1)
+    if dip is None:
+        return idx[rows[:, 0], top]
+    before = env[rows[:, 0], np.maximum(idx[:, 0] - 1, 0)][:, None]
+    prev = np.concatenate([before, w[:, :-1]], axis=1)
+    nxt = np.concatenate([w[:, 1:], w[:, -1:]], axis=1)
+    local = (w >= prev) & (w > nxt)
+    cols = np.arange(w.shape[1])[None, :]
+    # lowest envelope from each sample up to the strongest one (reverse running minimum)
+    upto = np.where(cols <= top[:, None], w, np.inf)
+    low = np.minimum.accumulate(upto[:, ::-1], axis=1)[:, ::-1]
+    strong = w >= RESOLVE_LEVEL * w[rows[:, 0], top][:, None]
+    resolved = local & strong & (cols < top[:, None]) & (w - low > np.asarray(dip)[:, None])
+    # the lobe's strongest sample on the rising edge of a later pulse (the envelope still
+    # rises past the span): any earlier local maximum is the first path's own peak
+    after = env[rows[:, 0], np.minimum(idx[:, -1] + 1, n - 1)]
+    rising = (top == w.shape[1] - 1) & (after > w[:, -1])
+    resolved |= local & (cols < top[:, None]) & rising[:, None]
+    pick = np.where(resolved.any(axis=1), np.argmax(resolved, axis=1), top)
+    return idx[rows[:, 0], pick]
 
 
 class ToaEstimator(ABC):
@@ -198,15 +293,23 @@ class ToaEstimator(ABC):
         self._complex = True
         self._independence = min(1.0, self._bandwidth_ratio)
         self._back = max(1, math.ceil(self.search_back * radar.fs))
+        self.pulse_width = pulse_sigma(radar, complex_input=True) * radar.fs
 
     def estimate(self, h: npt.NDArray) -> ToaEstimate:
         """First path of each row of ``h`` (ndarray float32 or complex64, shape (rows, n))."""
         return self.estimate_envelope(envelope(h), complex_input=np.iscomplexobj(h))
 
-    def estimate_envelope(self, env: FloatArray, *, complex_input: bool) -> ToaEstimate:
+    def estimate_envelope(
+        self, env: FloatArray, *, complex_input: bool, matched: bool = False
+    ) -> ToaEstimate:
         """First path of each row of magnitudes ``env`` (float64, shape (rows, n)) of real
-        or complex samples."""
+        or complex samples; ``matched``: the samples went through the band's matched filter
+        (:class:`~node_agent.dsp.band_filter.BandMatchedFilter`), which widens the pulse's
+        envelope by :math:`\\sqrt 2`."""
         self._complex = bool(complex_input)
+        # the model pulse's envelope sigma in samples, for the known-pulse peak refinement
+        width = pulse_sigma(self.radar, complex_input=complex_input) * self.radar.fs
+        self.pulse_width = width * (math.sqrt(2.0) if matched else 1.0)
         # a real signal of bandwidth B has 2 B independent samples per second
         self._independence = min(1.0, (1.0 if complex_input else 2.0) * self._bandwidth_ratio)
         # silent rows (all zero) and samples far above the noise take logs of 0 and exps
@@ -222,7 +325,8 @@ class ToaEstimator(ABC):
     def _result(
         self, env: FloatArray, peak: npt.NDArray[np.intp], sigma: FloatArray, quality: FloatArray
     ) -> ToaEstimate:
-        index = _refine(env, peak)
+        smooth = self._complex or self.radar.f_low <= 0.0
+        index = _refine(env, peak, self.pulse_width if smooth else None, sigma)
         amp = env[np.arange(env.shape[0]), peak]
         return ToaEstimate(
             toa=index / self.radar.fs,
@@ -249,7 +353,8 @@ class ToaEstimator(ABC):
         crossing = (env >= eta[:, None]) & (cols[None, :] >= self._search_start(env)[:, None])
         found = crossing.any(axis=1)
         first = np.where(found, np.argmax(crossing, axis=1), 0)
-        peak = _peak_after(env, first, self._lobe)
+        smooth = self._complex or self.radar.f_low <= 0.0
+        peak = _peak_after(env, first, self._lobe, RESOLVE_DIP * sigma if smooth else None)
         est = self._result(env, peak, sigma, self._noise_quality(env, peak, sigma))
         return _blank(est, ~found)
 

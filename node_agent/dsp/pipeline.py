@@ -193,6 +193,7 @@ class NodeDsp:
         if clutter is None:
             clutter = cfg.pfa * self._window.size + 0.1
         self._background = ExponentialBackgroundSubtractor(cfg.background_alpha)
+        self._y: npt.NDArray | None = None
         self._cfar: GaussianCfarDetector | None = None
         self._filter: BandMatchedFilter | None = None
         self._phd = RangeGmPhdFilter(
@@ -309,7 +310,11 @@ class NodeDsp:
         if self._cfar is None or self._cfar.complex_input != is_complex:
             self._cfar = self._make_cfar(is_complex)
             self._filter = self._make_filter(is_complex)
-        y = self._background.step(h[:, self._i0 : self._i1])
+        window = h[:, self._i0 : self._i1]
+        if self._y is None or self._y.shape != window.shape or self._y.dtype != window.dtype:
+            self._y = np.empty(window.shape, dtype=window.dtype)
+        # the subtracted frame lives only within this call: one buffer, no allocation
+        y = self._background.step(window, out=self._y)
         if self._filter is not None:
             y = self._filter.apply(y)
         # estimate rows (rate variance, range, rate, amplitude, channel), sorted by channel

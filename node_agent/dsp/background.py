@@ -60,7 +60,14 @@ class ExponentialBackgroundSubtractor:
                 return np.zeros_like(h)
             out.fill(0)
             return out
-        y = np.subtract(h, bg, out=out)
+        if out is None:
+            y = h - bg
+        else:
+            # row by row: a 2-D ufunc on a strided window of a wider frame goes through
+            # numpy's buffered iterator (a copy of the frame), 1-D contiguous rows do not
+            for row, b, o in zip(h, bg, out, strict=True):
+                np.subtract(row, b, out=o)
+            y = out
         # in place: no allocation per call for the (n_rx, n) background
         bg += np.multiply(y, self.alpha, out=self._scaled)
         return y

@@ -179,7 +179,10 @@ class GaussianCfarDetector:
             np.copyto(d2[:, half : width - half], inner)
             d2[:, half : width - half][d <= 0] = 0.0
         else:
-            np.multiply(s, s, out=inner)
+            # row by row: a 2-D ufunc on the strided padded view goes through numpy's
+            # buffered iterator (a copy of the frame), 1-D contiguous rows do not
+            for row, out in zip(s, inner, strict=True):
+                np.multiply(row, row, out=out)
             d2 = stat
         limit = np.multiply(self._k2, var, out=self._limit)
         crossing = d2 > limit

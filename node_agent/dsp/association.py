@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
@@ -101,35 +104,68 @@ class RangePairAssociator:
         i1, i2 : ndarray, intp, shape (p,)
             Indices into ``r1`` and ``r2`` of the paired ranges.
         """
-        a = np.asarray(r1, dtype=np.float64).ravel()
-        b = np.asarray(r2, dtype=np.float64).ravel()
-        # a few ranges per receiver: the admissible pairs are listed in plain Python, which
-        # costs less than the numpy calls it replaces
-        thr = self.threshold
-        bl = b.tolist()
-        pairs = [
-            (i, j) for i, x in enumerate(a.tolist()) for j, y in enumerate(bl) if abs(x - y) <= thr
-        ]
-        if not pairs:
-            return np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
-        n = len(pairs)
-        if n == len({i for i, _ in pairs}) == len({j for _, j in pairs}):
-            # no range competes for another: the admissible pairs are the assignment
-            i1, i2 = np.array(pairs, dtype=np.intp).T
-            return i1, i2
-        diff = np.abs(a[:, None] - b[None, :])
-        admissible = diff <= self.threshold
-        cost = diff * (1e-3 / self.threshold)
+        f1 = f2 = None
         if features1 is not None and features2 is not None:
-            f1 = np.asarray(features1, dtype=np.float64)
-            f2 = np.asarray(features2, dtype=np.float64)
-            dv = f1[1][:, None] - f2[1][None, :]
-            cost += dv * dv / (f1[0][:, None] + f2[0][None, :] + self.rate_var)
-            with np.errstate(divide="ignore"):
-                dl = np.log(f1[2])[:, None] - np.log(f2[2])[None, :]
-            cost += np.minimum(dl * dl, 1e6) / self.log_amplitude_var
+            f1 = np.asarray(features1, dtype=np.float64).T.tolist()
+            f2 = np.asarray(features2, dtype=np.float64).T.tolist()
+        i1, i2 = self.associate_lists(
+            np.asarray(r1, dtype=np.float64).ravel().tolist(),
+            np.asarray(r2, dtype=np.float64).ravel().tolist(),
+            f1,
+            f2,
+        )
+        return np.array(i1, dtype=np.intp), np.array(i2, dtype=np.intp)
+
+    def associate_lists(
+        self,
+        r1: Sequence[float],
+        r2: Sequence[float],
+        features1: Sequence[Sequence[float]] | None = None,
+        features2: Sequence[Sequence[float]] | None = None,
+    ) -> tuple[list[int], list[int]]:
+        """:meth:`associate` on Python lists: a node pairs a few ranges per impulse response,
+        where plain float arithmetic costs less than the numpy calls it replaces.
+
+        Parameters
+        ----------
+        r1, r2 : sequence of float, length k1 and k2
+            Ranges at receivers 1 and 2, m.
+        features1, features2 : sequence of (rate variance, rate, amplitude), optional
+            One triple per range (the columns of :meth:`associate`'s feature rows).
+
+        Returns
+        -------
+        i1, i2 : list of int
+            Indices into ``r1`` and ``r2`` of the paired ranges.
+        """
+        thr = self.threshold
+        pairs = [(i, j) for i, x in enumerate(r1) for j, y in enumerate(r2) if abs(x - y) <= thr]
+        if not pairs:
+            return [], []
+        i1 = [i for i, _ in pairs]
+        i2 = [j for _, j in pairs]
+        if len(pairs) == len(set(i1)) == len(set(i2)):
+            # no range competes for another: the admissible pairs are the assignment
+            return i1, i2
+        tie = 1e-3 / thr
+        cost = [[abs(x - y) * tie for y in r2] for x in r1]
+        if features1 is not None and features2 is not None:
+            rate_var, amp_var = self.rate_var, self.log_amplitude_var
+            # an amplitude of 0 has log -inf: its squared difference is capped below
+            log2 = [math.log(a) if a > 0 else -math.inf for _, _, a in features2]
+            for row, (v1, d1, a1) in zip(cost, features1, strict=True):
+                la = math.log(a1) if a1 > 0 else -math.inf
+                for j, ((v2, d2, _), lb) in enumerate(zip(features2, log2, strict=True)):
+                    dv, dl = d1 - d2, la - lb
+                    row[j] += dv * dv / (v1 + v2 + rate_var)
+                    row[j] += min(dl * dl, 1e6) / amp_var
         # inadmissible pairs cost more than any admissible assignment, then get dropped
-        big = (float(cost[admissible].max()) + 1.0) * (min(a.size, b.size) + 1.0)
-        i1, i2 = linear_sum_assignment(np.where(admissible, cost, big))
-        ok = admissible[i1, i2]
-        return i1[ok].astype(np.intp), i2[ok].astype(np.intp)
+        big = (max(cost[i][j] for i, j in pairs) + 1.0) * (min(len(r1), len(r2)) + 1.0)
+        admissible = set(pairs)
+        matrix = [
+            [c if (i, j) in admissible else big for j, c in enumerate(row)]
+            for i, row in enumerate(cost)
+        ]
+        rows, cols = linear_sum_assignment(np.array(matrix))
+        pairs = [p for p in zip(rows.tolist(), cols.tolist(), strict=True) if p in admissible]
+        return [i for i, _ in pairs], [j for _, j in pairs]

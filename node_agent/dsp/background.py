@@ -35,13 +35,16 @@ class ExponentialBackgroundSubtractor:
         """Forget the background; the next call re-initialises it."""
         self._background = None
 
-    def step(self, h: npt.NDArray) -> npt.NDArray:
+    def step(self, h: npt.NDArray, out: npt.NDArray | None = None) -> npt.NDArray:
         """Subtract the background, then update it.
 
         Parameters
         ----------
         h : ndarray, float32 or complex64, shape (n_rx, n)
             Impulse responses.
+        out : ndarray, optional
+            Array of ``h``'s shape and dtype that receives the result (the caller owns it
+            until the next call); a new array when omitted.
 
         Returns
         -------
@@ -52,8 +55,19 @@ class ExponentialBackgroundSubtractor:
         bg = self._background
         if bg is None or bg.shape != h.shape or bg.dtype != h.dtype:
             self._background = np.array(h, copy=True)
-            return np.zeros_like(h)
-        y = h - bg
+            self._scaled = np.empty_like(self._background)
+            if out is None:
+                return np.zeros_like(h)
+            out.fill(0)
+            return out
+        if out is None:
+            y = h - bg
+        else:
+            # row by row: a 2-D ufunc on a strided window of a wider frame goes through
+            # numpy's buffered iterator (a copy of the frame), 1-D contiguous rows do not
+            for row, b, o in zip(h, bg, out, strict=True):
+                np.subtract(row, b, out=o)
+            y = out
         # in place: no allocation per call for the (n_rx, n) background
-        bg += self.alpha * y
+        bg += np.multiply(y, self.alpha, out=self._scaled)
         return y

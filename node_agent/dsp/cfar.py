@@ -96,6 +96,10 @@ class GaussianCfarDetector:
         # window that never cross the threshold, so that a crossing's neighbourhood
         # (flat index + offsets) needs no clipping at the window's edges.
         self._width = m + 2 * self._half
+        # range of each padded column (padding columns never cross: their value is unused)
+        self._padded_ranges = (
+            np.pad(self._ranges, self._half, mode="edge") if m else np.zeros(self._width)
+        )
         self.set_min_range(min_range)
         self._rate = np.empty(0, dtype=np.float32)
         self._mean: npt.NDArray[np.float32] | None = None
@@ -175,7 +179,10 @@ class GaussianCfarDetector:
             np.copyto(d2[:, half : width - half], inner)
             d2[:, half : width - half][d <= 0] = 0.0
         else:
-            np.multiply(s, s, out=inner)
+            # row by row: a 2-D ufunc on the strided padded view goes through numpy's
+            # buffered iterator (a copy of the frame), 1-D contiguous rows do not
+            for row, out in zip(s, inner, strict=True):
+                np.multiply(row, row, out=out)
             d2 = stat
         limit = np.multiply(self._k2, var, out=self._limit)
         crossing = d2 > limit
@@ -202,20 +209,19 @@ class GaussianCfarDetector:
 
         nb = d2.ravel()[flat_nb]  # (k, 2*half+1)
         # a crossing is a peak when it is the maximum within one pulse width, and the
-        # first of equal maxima (a flat top gives one peak, not two a sample apart)
-        centre = nb[:, half]
-        is_peak = centre >= np.maximum.reduce(nb, 1)
-        is_peak &= centre > np.maximum.reduce(nb[:, :half], 1)
-        rows, cols = np.divmod(idx[is_peak], width)
-        env = np.sqrt(nb[is_peak, half - 1 : half + 2].astype(np.float64))
-        a_m, amp, a_p = env[:, 0], env[:, 1], env[:, 2]
+        # first of equal maxima (a flat top gives one peak, not two a sample apart):
+        # argmax returns the first maximum, so both tests are argmax == centre
+        is_peak = nb.argmax(1) == half
+        rows, cols = np.divmod(idx.compress(is_peak), width)
+        env = np.sqrt(nb.compress(is_peak, axis=0)[:, half - 1 : half + 2], dtype=np.float64)
+        a_m, amp, a_p = env.T
         # parabola through the envelope around the peak: sub-sample delay. The centre is
         # the neighbourhood's maximum, so den <= -|a_m - a_p| and |frac| <= 1/2; a flat
         # top (den = 0, a_m = a_p) gives frac = 0
         den = a_m - 2.0 * amp + a_p
         frac = (a_m - a_p) / np.minimum(den, -1e-300)
         frac *= 0.5 * self._step
-        return self._ranges[cols - half] + frac, amp, rows
+        return self._padded_ranges[cols] + frac, amp, rows
 
     def _initialise(self, s: npt.NDArray[np.float32]) -> bool:
         """Noise statistics from a robust noise-floor estimate of the frame ``s``.

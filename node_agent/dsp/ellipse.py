@@ -61,6 +61,13 @@ class EllipseIntersector:
             self._frame = np.array([axis, [-axis[1], axis[0]]])  # rows: along, across
         else:
             self._inverse = np.linalg.solve(a, np.eye(2))  # A^{-1}, once per geometry
+        # the constants of locate() as Python floats, converted once
+        self._scalars = (
+            ant.ravel().tolist(),
+            float(self._norm2[0, 0]),
+            float(self._norm2[1, 0]),
+            self._frame.ravel().tolist() if self.collinear else self._inverse.ravel().tolist(),
+        )
 
     def intersect(self, ranges: npt.ArrayLike) -> tuple[FloatArray, IntArray]:
         """Intersection points of range pairs.
@@ -146,12 +153,12 @@ class EllipseIntersector:
             covariance in m^2), in :meth:`intersect` order; points of singular geometry
             (``ok`` False in :meth:`covariance`) are left out.
         """
-        tx, ty = float(self.tx[0]), float(self.tx[1])
-        n1, n2 = float(self._norm2[0, 0]), float(self._norm2[1, 0])
+        (x0, y0, x1, y1, x2, y2), n1, n2, mat = self._scalars
+        tx, ty = x0, y0
         points: list[tuple[float, float]] = []
         if self.collinear:
             kappa, len1 = self._kappa, self._len1
-            (ax, ay), (cx, cy) = self._frame.tolist()
+            ax, ay, cx, cy = mat
             for a, c in zip(r1, r2, strict=True):
                 b0, b1 = (n1 - a * a) * 0.5, (n2 - c * c) * 0.5
                 den = kappa * a - c
@@ -167,7 +174,7 @@ class EllipseIntersector:
                 if across2 > 0:  # a point on the baseline once, not twice
                     points.append((s * ax - off * cx + tx, s * ay - off * cy + ty))
         else:
-            (i00, i01), (i10, i11) = self._inverse.tolist()
+            i00, i01, i10, i11 = mat
             for a, c in zip(r1, r2, strict=True):
                 b0, b1 = (n1 - a * a) * 0.5, (n2 - c * c) * 0.5
                 p0x, p0y = i00 * b0 + i01 * b1, i10 * b0 + i11 * b1
@@ -188,7 +195,6 @@ class EllipseIntersector:
                         points.append((p0x + p1x * d + tx, p0y + p1y * d + ty))
         out = []
         var = range_std * range_std
-        (x0, y0), (x1, y1), (x2, y2) = self.antennas.tolist()
         for px, py in points:
             ux, uy = px - x0, py - y0
             dist = max(math.hypot(ux, uy), 1e-12)

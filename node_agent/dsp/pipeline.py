@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -17,7 +19,6 @@ from .geometry import RadarParams, SensorGeometry
 from .range_phd import RangeGmPhdFilter
 
 FloatArray = npt.NDArray[np.float64]
-_FEATURES = np.array([0, 2, 3])  # estimate columns (rate variance, rate, amplitude)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -192,6 +193,7 @@ class NodeDsp:
         if clutter is None:
             clutter = cfg.pfa * self._window.size + 0.1
         self._background = ExponentialBackgroundSubtractor(cfg.background_alpha)
+        self._y: npt.NDArray | None = None
         self._cfar: GaussianCfarDetector | None = None
         self._filter: BandMatchedFilter | None = None
         self._phd = RangeGmPhdFilter(
@@ -308,27 +310,37 @@ class NodeDsp:
         if self._cfar is None or self._cfar.complex_input != is_complex:
             self._cfar = self._make_cfar(is_complex)
             self._filter = self._make_filter(is_complex)
-        y = self._background.step(h[:, self._i0 : self._i1])
+        window = h[:, self._i0 : self._i1]
+        if self._y is None or self._y.shape != window.shape or self._y.dtype != window.dtype:
+            self._y = np.empty(window.shape, dtype=window.dtype)
+        # the subtracted frame lives only within this call: one buffer, no allocation
+        y = self._background.step(window, out=self._y)
         if self._filter is not None:
             y = self._filter.apply(y)
-        # estimate rows (rate variance, range, rate, amplitude, channel)
+        # estimate rows (rate variance, range, rate, amplitude, channel), sorted by channel
         est = self._phd.step_detections(t, *self._cfar.detect(y))
-        spans = self._phd.channel_spans(est)
+        # a handful of estimates: the rest of the chain is scalar arithmetic on Python
+        # floats, which beats numpy calls on 1-5 element arrays
+        rows = est.tolist()
+        chans = [row[4] for row in rows]
+        bounds = [bisect.bisect_left(chans, c - 0.5) for c in range(self.n_rx + 1)]
+        spans = list(itertools.pairwise(bounds))
         ranges = tuple(est[a:b, 1] for a, b in spans)
         amps = tuple(est[a:b, 3] for a, b in spans)
         if self._pair is None or self._associator is None:
             return DspResult(t=t, ranges=ranges, amplitudes=amps)
         i, j = self._pair
-        e1, e2 = est[slice(*spans[i])].T, est[slice(*spans[j])].T
-        k1, k2 = self._associator.associate(e1[1], e2[1], e1[_FEATURES], e2[_FEATURES])
-        if k1.size == 0:
+        rows1, rows2 = rows[slice(*spans[i])], rows[slice(*spans[j])]
+        r1 = [row[1] for row in rows1]
+        r2 = [row[1] for row in rows2]
+        k1, k2 = self._associator.associate_lists(
+            r1, r2, [(v, d, a) for v, _, d, a, _ in rows1], [(v, d, a) for v, _, d, a, _ in rows2]
+        )
+        if not k1:
             return DspResult(t=t, ranges=ranges, amplitudes=amps, rx_pair=self._pair)
-        # a handful of pairs: scalar arithmetic (EllipseIntersector.locate) beats numpy calls
         off = self.config.range_offset
         located = self._intersector.locate(
-            [r + off for r in e1[1, k1].tolist()],
-            [r + off for r in e2[1, k2].tolist()],
-            self.config.range_std,
+            [r1[k] + off for k in k1], [r2[k] + off for k in k2], self.config.range_std
         )
         # field of view: cos(bearing - boresight) >= cos(half beamwidth + margin)
         cx, cy, dx, dy = self._fov
@@ -340,12 +352,11 @@ class NodeDsp:
         ]
         if not kept:
             return DspResult(t=t, ranges=ranges, amplitudes=amps, rx_pair=self._pair)
-        rows = np.array(kept)
         return DspResult(
             t=t,
             ranges=ranges,
             amplitudes=amps,
-            positions=rows[:, (0, 1)],
-            cov=rows[:, (2, 3, 3, 4)].reshape(-1, 2, 2),
+            positions=np.array([(x, y) for x, y, _, _, _ in kept]),
+            cov=np.array([((a, b), (b, c)) for _, _, a, b, c in kept]),
             rx_pair=self._pair,
         )

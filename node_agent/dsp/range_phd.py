@@ -27,6 +27,9 @@ _CH_SPAN = 1.0e6
 # Kalman covariance update (prr, prv, pvv) -= gain[_GAIN_COLS] * row[_COV_COLS]
 _GAIN_COLS = np.array([0, 0, 1])
 _COV_COLS = np.array([_PRR, _PRV, _PRV])
+# moment-matching spread (w e_r e_r, w e_r e_v, w e_v e_v) = (w e)[:, left] * e[:, right]
+_SPREAD_LEFT = np.array([0, 0, 1])
+_SPREAD_RIGHT = np.array([0, 1, 1])
 ESTIMATE_COLUMNS = ("range_rate_var", "range", "range_rate", "amplitude", "channel")
 """Columns of the estimate rows returned by :meth:`RangeGmPhdFilter.step_detections`."""
 
@@ -113,6 +116,9 @@ class RangeGmPhdFilter:
         self.merge_threshold = float(merge_threshold)
         self.max_components = int(max_components)
         self._channel_edges = np.arange(self.n_channels + 1) - 0.5
+        # survivors' missed-detection row scale: w *= 1 - pD, every other column kept
+        self._miss_scale = np.ones(_NCOL)
+        self._miss_scale[_W] = 1.0 - self.pd
         self._birth_row = np.zeros((1, _NCOL))
         self._birth_row[0, [_W, _PRR, _PVV]] = (
             self.birth_weight,
@@ -267,12 +273,14 @@ class RangeGmPhdFilter:
             return r, a, r
         key = ch * _CH_SPAN  # float64 from the integer channels, without a separate cast
         key += r
-        new = np.empty(r.size, dtype=bool)
-        new[0] = True
-        np.greater(key[1:] - key[:-1], self.cluster_gap, out=new[1:])
-        starts = new.nonzero()[0]
-        if starts.size == r.size:  # no extended echo: every detection is a measurement
+        # a cluster starts after a gap wider than cluster_gap; a dozen detections per
+        # impulse response: one list pass costs less than the numpy calls it replaces
+        kl = key.tolist()
+        gap = self.cluster_gap
+        first = [i for i in range(1, len(kl)) if kl[i] - kl[i - 1] > gap]
+        if len(first) == len(kl) - 1:  # no extended echo: every detection is a measurement
             return key, a, ch
+        starts = np.array([0, *first], dtype=np.intp)
         # power-weighted centre: the strongest scatterers of a body dominate its range
         p = a * a
         z = np.add.reduceat(p * key, starts) / np.add.reduceat(p, starts)
@@ -285,8 +293,8 @@ class RangeGmPhdFilter:
             x[:, _W] *= 1.0 - self.pd
             return
         n = x.shape[0]
-        explained = 0.0
-        hyp = x[:0]
+        k = n
+        out = None
         if n:
             s = x[:, _PRR] + self.range_var  # innovation variance, (J,)
             innov = z - x[:, _R, None]  # (J, M); exactly 0 likelihood across channels
@@ -298,29 +306,30 @@ class RangeGmPhdFilter:
             den = np.add.reduce(lik, 0)
             den += self.kappa
             lik /= den
-            explained = np.add.reduce(lik, 0)
             # keep only the (component, measurement) hypotheses that matter
             jj, mm = (lik > self.prune_threshold).nonzero()
-            # gain (k_r, k_v) = P H^T / s and posterior covariance P - K H P depend on the
-            # component only: computed per component, then gathered per hypothesis
-            gain = x[:, _PRR : _PRV + 1] / s[:, None]
-            post = x.copy()
+            k = n + jj.size
+            # one allocation for survivors, updated hypotheses and births
+            out = np.empty((k + m, _NCOL))
+            np.multiply(x, self._miss_scale, out=out[:n])  # w *= 1 - pD, the rest kept
+            hyp = out[n:k]
+            x.take(jj, axis=0, out=hyp)
+            # gain (k_r, k_v) = P H^T / s and posterior covariance P - K H P
+            gain = hyp[:, _PRR : _PRV + 1] / s.take(jj)[:, None]
             # (prr, prv, pvv) -= (k_r prr, k_r prv, k_v prv)
-            post[:, _PRR : _PVV + 1] -= gain[:, _GAIN_COLS] * x[:, _COV_COLS]
-            hyp = post[jj]
-            hyp[:, _R : _V + 1] += gain[jj] * innov[jj, mm][:, None]
+            hyp[:, _PRR : _PVV + 1] -= gain[:, _GAIN_COLS] * hyp[:, _COV_COLS]
+            hyp[:, _R : _V + 1] += gain * innov[jj, mm][:, None]
             hyp[:, _W] = lik[jj, mm]
-            hyp[:, _AMP] = za[mm]
-            x[:, _W] *= 1.0 - self.pd
-        # one allocation for survivors, updated hypotheses and births
-        k = n + hyp.shape[0]
-        out = np.empty((k + m, _NCOL))
-        out[:n] = x
-        out[n:k] = hyp
+            hyp[:, _AMP] = za.take(mm)
+            # 1 - (explained share of each measurement) is kappa / den
+            explained = den
+        else:
+            out = np.empty((m, _NCOL))
         # adaptive birth at the measurements the mixture does not explain yet
         b = out[k:]
         b[:] = self._birth_row
-        b[:, _W] *= np.maximum(1.0 - explained, 0.0)
+        if n:
+            np.divide(self.birth_weight * self.kappa, explained, out=b[:, _W])
         b[:, _R] = z
         b[:, _AMP] = za
         b[:, _CH] = zc
@@ -345,22 +354,20 @@ class RangeGmPhdFilter:
             prr, prv, pvv = cov.T
             # d^T adj(P) d <= gate * det(P)
             d2 = (pvv * dr - 2.0 * prv * dv) * dr + prr * dv * dv
-            join = d2 <= self.merge_threshold * (prr * pvv - prv * prv)
-            if np.count_nonzero(join):
-                first = np.empty(n, dtype=bool)
-                first[0] = True
-                np.logical_not(join, out=first[1:])
-                starts = first.nonzero()[0]
+            first = np.empty(n, dtype=bool)
+            first[0] = True
+            # not joined to the previous row: a NaN distance starts a group too
+            np.less_equal(d2, self.merge_threshold * (prr * pvv - prv * prv), out=first[1:])
+            np.logical_not(first[1:], out=first[1:])
+            starts = first.nonzero()[0]
+            if starts.size < n:
                 group = np.add.accumulate(first) - 1
                 ws = np.add.reduceat(w, starts)
                 # moment matching: weighted means of every column, plus the spread
-                wx = x * w[:, None]
-                merged = np.add.reduceat(wx, starts, axis=0) / ws[:, None]
+                merged = np.add.reduceat(x * w[:, None], starts, axis=0) / ws[:, None]
                 e = x[:, _R : _V + 1] - merged[group, _R : _V + 1]
-                we = e * w[:, None]
-                spread = np.empty((n, 3))
-                spread[:, :2] = we[:, :1] * e
-                spread[:, 2] = we[:, 1] * e[:, 1]
+                # (w e_r e_r, w e_r e_v, w e_v e_v)
+                spread = (e * w[:, None])[:, _SPREAD_LEFT] * e[:, _SPREAD_RIGHT]
                 merged[:, _PRR : _PVV + 1] += np.add.reduceat(spread, starts, axis=0) / ws[:, None]
                 merged[:, _W] = ws
                 # members share a channel; rint undoes the rounding of the weighted mean
@@ -373,7 +380,7 @@ class RangeGmPhdFilter:
 
     def _extract(self) -> FloatArray:
         x = self._x
-        e = x[x[:, _W] > 0.5]
+        e = x.compress(x[:, _W] > 0.5, axis=0)
         w = e[:, _W]
         if np.count_nonzero(w >= 1.5):
             # a weight near 2 means two unresolved targets at that range

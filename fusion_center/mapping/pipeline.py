@@ -79,7 +79,7 @@ class MapperConfig:
     min_range: float = 1.2
     max_range: float = 10.0
     threshold: float = 8.0
-    dynamic_db: float = 12.0
+    dynamic_db: float = 6.0
     max_echoes: int = 4
     pair_gate: float = 0.6
     background_alpha: float = 0.0

@@ -26,15 +26,20 @@ all scatterer contributions (eq. (3)):
 
 Since the specular point minimises the unfolded length over the plane, ``L_n >= L_spec``
 and every scatterer is at most ``(a + p r)`` times its specular path: the scattered energy
-of a cluster is bounded by ``N (a + p r)^2 |a_i|^2``. Scatterers are not clipped to the
-face's polygon by rejection-resampling: those falling off the face are dropped, so a
-cluster on a small face has fewer than N.
+of a cluster of ``N_i`` scatterers is bounded by ``N_i (a + p r)^2 |a_i|^2`` (``N_i`` is
+Poisson with mean N, below). Scatterers that fall off the face's polygon are dropped, so a
+cluster near a face's edge has fewer.
 
-**Realization.** The offsets of the scatterers (in the face's plane frame) are drawn once per
-realization, seeded, in a table of ``n_table`` clusters; a cluster is selected by a hash of
-the reflection sequence and the bounce index. The same specular path therefore keeps the
-same cluster (moving with its reflection point) for every Tx/Rx position of the
-realization, as the chapter reuses one draw for all positions.
+**Realization.** The scatterers are fixed on the surfaces, in the world: each face carries a
+homogeneous Poisson field of points of density ``N / (pi r^2)`` (so that a disc of radius r
+around a reflection point holds N on average), and the cluster of a reflection point is the
+set of its face's scatterers within r of it. The field is laid out on a square lattice of
+cells of side r in the face's plane frame; each cell's points are a row of a seeded table of
+``n_table`` cell patterns, selected by a hash of (face, cell). Every path that reflects near
+the same spot of a face, whatever its order and wherever the Tx and Rx are, therefore sees
+the same physical scatterers, as a rough wall does. (An earlier version drew one offset
+pattern per reflection sequence and moved it with the specular point: on a moving robot the
+clusters rode along and made echoes no static map explains.)
 
 Simplifications (documented, not hidden): scatterer rays inherit the visibility, the
 transmission factors, the polarization and the antenna gains of their specular path.
@@ -89,7 +94,7 @@ class HybridConfig:
     knots : tuple of float
         Frequencies at which amplitudes are evaluated, Hz (one knot: frequency-flat).
     n_table : int
-        Number of scatterer clusters drawn per realization.
+        Number of lattice-cell patterns of the surface scatterer field drawn per realization.
     """
 
     max_order: int = 3
@@ -106,20 +111,74 @@ class HybridConfig:
 
 
 def draw_clusters(n_table: int, n: int, radius: float, rng: np.random.Generator) -> np.ndarray:
-    """Scatterer offsets uniform on a disc of ``radius``, shape (n_table, n, 2), m.
+    """Table of cell patterns of the surface scatterer field, shape (n_table, M, 2), m.
 
-    Uniform in area: ``rho = r sqrt(U_1)``, ``phi = 2 pi U_2``.
+    Row i holds the offsets of one lattice cell's scatterers from the cell's lower corner,
+    uniform on ``[0, radius)^2``, their number Poisson with mean ``n / pi`` (density
+    ``n / (pi radius^2)``); unused slots of the M columns are NaN.
     """
-    rho = radius * np.sqrt(rng.random((n_table, n)))
-    phi = 2 * np.pi * rng.random((n_table, n))
-    return np.stack([rho * np.cos(phi), rho * np.sin(phi)], axis=-1)
+    mean = n / np.pi
+    m_max = int(np.ceil(mean + 6.0 * np.sqrt(mean))) + 1 if n > 0 else 0
+    count = np.minimum(rng.poisson(mean, n_table), m_max)
+    offsets = radius * rng.random((n_table, m_max, 2))
+    offsets[np.arange(m_max)[None, :] >= count[:, None]] = np.nan
+    return offsets
 
 
-def cluster_index(sequence: np.ndarray, bounce: int, n_table: int) -> npt.NDArray[np.int64]:
-    """Table row of the cluster at bounce ``bounce`` of each reflection sequence (n, k)."""
-    k = sequence.shape[1]
-    h = (sequence + 1) @ _HASH_PRIMES[:k] + (bounce + 1) * 2654435761 + k * 97
+def cluster_index(face: np.ndarray, cell: np.ndarray, n_table: int) -> npt.NDArray[np.int64]:
+    """Table row of lattice cell ``cell`` (..., 2) of face ``face`` (...)."""
+    h = (
+        (face + 1) * _HASH_PRIMES[0]
+        + cell[..., 0] * _HASH_PRIMES[1]
+        + cell[..., 1] * _HASH_PRIMES[2]
+    )
     return np.remainder(h, n_table).astype(np.int64)
+
+
+def surface_scatterers(
+    room: Room, face: np.ndarray, points: np.ndarray, clusters: np.ndarray, radius: float
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The world-fixed scatterers within ``radius`` of reflection points on their faces.
+
+    Parameters
+    ----------
+    room : Room
+    face : ndarray, int, shape (n,)
+        Face of each reflection point.
+    points : ndarray, float64, shape (n, 3)
+        Reflection points (in their face's plane), world, m.
+    clusters : ndarray, float64, shape (n_table, M, 2)
+        Cell patterns from :func:`draw_clusters`, drawn with the same ``radius``.
+    radius : float
+        r, m (also the lattice's cell side).
+
+    Returns
+    -------
+    row : ndarray, int, shape (S,)
+        Index into ``points`` of each scatterer.
+    position : ndarray, float64, shape (S, 3)
+        Scatterer positions, world, m: on the face (off-polygon ones dropped).
+    delta : ndarray, float64, shape (S,)
+        Distance from the reflection point, m (``delta_n`` of eq. (1)).
+    """
+    axes = np.stack([room.axis_u[face], room.axis_v[face]], axis=1)  # (n, 2, 3)
+    st = np.einsum("njk,nk->nj", axes, points - room.origin[face])  # plane coordinates
+    base = np.floor(st / radius).astype(np.int64)
+    # a disc of radius r around st lies within the 3 x 3 cells around st's cell (side r)
+    shift = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij"), axis=-1).reshape(9, 2)
+    cell = base[:, None, :] + shift[None, :, :]  # (n, 9, 2)
+    pattern = clusters[cluster_index(face[:, None], cell, clusters.shape[0])]  # (n, 9, M, 2)
+    at = cell[:, :, None, :] * radius + pattern  # scatterers' plane coordinates
+    rel = (at - st[:, None, None, :]).reshape(len(face), -1, 2)  # (n, 9 M, 2)
+    with np.errstate(invalid="ignore"):
+        dist = np.linalg.norm(rel, axis=-1)
+        near = dist < radius  # NaN (empty slots) compares False
+    row, col = np.nonzero(near)
+    o = rel[row, col]
+    q = points[row] + o[:, :1] * axes[row, 0] + o[:, 1:] * axes[row, 1]
+    # Scatterers that fall off the face are not on the surface: dropped.
+    keep = room.contains(face[row], q)
+    return row[keep], q[keep], dist[row, col][keep]
 
 
 def scatterer_paths(
@@ -138,8 +197,8 @@ def scatterer_paths(
         The deterministic paths (rows referenced by ``geometry``).
     geometry : list of SpecularGeometry
         Per order 1.., from :func:`sim_nodes.channel.raytrace.trace`.
-    clusters : ndarray, float64, shape (n_table, N, 2)
-        Offsets from :func:`draw_clusters`, m.
+    clusters : ndarray, float64, shape (n_table, M, 2)
+        Cell patterns from :func:`draw_clusters`, m.
     config : HybridConfig
 
     Returns
@@ -148,9 +207,6 @@ def scatterer_paths(
         ``kind == SCATTERED``; other attributes those of the parent specular path.
     """
     k0 = 2 * np.pi * config.center_frequency / C
-    # Eq. (1) without Gamma depends only on the offsets: evaluate it once on the table.
-    delta = np.linalg.norm(clusters, axis=-1)  # (n_table, N)
-    table_scale = (config.a + config.p * delta) * np.exp(-1j * k0 * delta)
     parent_rows, delays, scales = [], [], []
     for g in geometry:
         k = g.sequence.shape[1]
@@ -158,26 +214,17 @@ def scatterer_paths(
             continue
         excess = paths.delay[g.index] - g.length / C  # through-wall excess of the parent
         for m in range(k):
-            face = g.sequence[:, m]
-            cluster = cluster_index(g.sequence, m, clusters.shape[0])
-            offs = clusters[cluster]  # (n, N, 2)
-            # Scatterers that fall off the face are not on the surface: dropped. In the
-            # face's plane the edge test is linear: E.(X + o) = E.X + E.o.
-            axes = np.stack([room.axis_u[face], room.axis_v[face]], axis=1)  # (n, 2, 3)
-            plane = room.edge_plane[face]  # (n, V, 3)
-            at_point = np.einsum("nvk,nk->nv", plane, g.points[:, m])
-            along = np.einsum("nvk,njk->nvj", plane, axes)  # (n, V, 2)
-            lhs = at_point[:, None, :] + np.einsum("nvj,nsj->nsv", along, offs)
-            on_face = np.all(lhs >= room.edge_level[face][:, None, :] - 1e-9, axis=-1)
-            row, col = np.nonzero(on_face)
-            o = offs[row, col]
-            q = g.points[row, m] + o[:, :1] * axes[row, 0] + o[:, 1:] * axes[row, 1]
+            row, q, delta = surface_scatterers(
+                room, g.sequence[:, m], g.points[:, m], clusters, config.radius
+            )
             length = np.linalg.norm(q - g.tx_images[row, m], axis=-1) + np.linalg.norm(
                 q - g.rx_images[row, m], axis=-1
             )
             parent_rows.append(g.index[row])
             delays.append(length / C + excess[row])
-            scales.append(table_scale[cluster[row], col] * (g.length[row] / length))
+            # eq. (1) without Gamma (the parent's amplitude carries it), times L_spec / L_n
+            scale = (config.a + config.p * delta) * np.exp(-1j * k0 * delta)
+            scales.append(scale * (g.length[row] / length))
     if not parent_rows:
         return paths.select(np.zeros(paths.count, bool))
     rows = np.concatenate(parent_rows)
@@ -203,7 +250,7 @@ class HybridChannel:
     room : Room
     config : HybridConfig
     rng : numpy.random.Generator
-        Draws the scatterer clusters once, at construction (the realization).
+        Draws the surface scatterer field once, at construction (the realization).
     """
 
     def __init__(self, room: Room, config: HybridConfig, rng: np.random.Generator) -> None:

@@ -79,3 +79,27 @@ def test_bad_configuration_is_refused() -> None:
         RbpfSlam(ANTENNAS, SlamConfig(association="magic"))
     with pytest.raises(ValueError, match="antennas"):
         RbpfSlam(np.zeros((2, 2)))
+
+
+@pytest.mark.parametrize(("weight_hits", "young"), [(4, True), (0, False)])
+def test_issue_8_a_young_landmark_does_not_weigh_the_particles(
+    weight_hits: int, young: bool
+) -> None:
+    # Three particles; only particle 0 keeps the landmark founded by the first pair (a
+    # ghost, say). The same pair again: with landmark quality the young landmark explains it
+    # no better than a new one, so the weights stay equal and nothing is resampled; without
+    # it particle 0 takes most of the weight and the resampling copies it (its landmark,
+    # 2 hits) over the others.
+    cfg = SlamConfig(n_particles=3, association="state", weight_hits=weight_hits, seed=1)
+    slam = RbpfSlam(ANTENNAS, cfg)
+    z = np.array([[4.0, 4.1]])
+    slam.update(z)
+    slam.lm.active[1:] = False
+    slam.update(z)
+    hits = slam.lm.hits[slam.lm.active]
+    if young:
+        assert np.ptp(slam.logw) < 1e-9 and slam.resamples == 0
+        assert sorted(hits.tolist()) == [1, 1, 2]
+    else:
+        assert slam.resamples == 1
+        assert np.sum(hits == 2) >= 2

@@ -101,6 +101,9 @@ class NodeCore:
         self.peers: dict[str, NodeInfo] = dict(peers or {})
         self.radar = radar_params(info)
         self._dsp: dict[tuple[str, tuple[str, ...]], NodeDsp] = {}
+        # compile the DSP's numba kernels (or load them from numba's cache) now, not in the
+        # time slot of the first acquisition
+        from node_agent.dsp import kernels  # noqa: F401
 
     def update_info(self, info: NodeInfo) -> None:
         """Take a changed description of this node (new pose, antennas): DSP state restarts."""

@@ -93,10 +93,10 @@ class ReferenceRangePhd:
             else:
                 new = [{**c, "w": (1 - f.pd) * c["w"]} for c in comps]
             out.append(self._prune_merge(new))
-        # cap over all channels by weight, keeping the order
-        flat = [(c["w"], ch, k) for ch, comps in enumerate(out) for k, c in enumerate(comps)]
+        # cap over all channels by weight (of equal weights the first), keeping the order
+        flat = [(-c["w"], ch, k) for ch, comps in enumerate(out) for k, c in enumerate(comps)]
         if len(flat) > f.max_components:
-            keep = {(ch, k) for _, ch, k in sorted(flat, reverse=True)[: f.max_components]}
+            keep = {(ch, k) for _, ch, k in sorted(flat)[: f.max_components]}
             out = [[c for k, c in enumerate(cs) if (ch, k) in keep] for ch, cs in enumerate(out)]
         self.mix = out
         est = []
@@ -148,10 +148,10 @@ def _detections(rng, k, n_ch=2):
     return r[order], rng.uniform(0.2, 2.0, r.size)[order], ch[order]
 
 
-def test_range_phd_matches_reference():
+@pytest.mark.parametrize("max_components", [60, 9])
+def test_range_phd_matches_reference(max_components):
     rng = np.random.default_rng(7)
-    # (the cap on components is left out: births of equal weight tie at its boundary)
-    phd = RangeGmPhdFilter(n_channels=2, clutter_intensity=0.05)
+    phd = RangeGmPhdFilter(n_channels=2, clutter_intensity=0.05, max_components=max_components)
     ref = ReferenceRangePhd(phd)
     n_est = 0
     for k in range(60):

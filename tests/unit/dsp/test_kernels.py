@@ -1,0 +1,130 @@
+"""The compiled DSP kernels (``node_agent.dsp.kernels``) against plain Python references,
+and their fallback when numba has no writable cache directory."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from node_agent.dsp import RangeGmPhdFilter, kernels
+
+from .test_reference_equivalence import ReferenceRangePhd
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _random_mixture(rng, n_channels, span):
+    """Kernel rows and the reference's per-channel dicts of one random mixture: weights up
+    to 2.5 (estimates repeated), close neighbours (merged), sorted by channel-offset range."""
+    rows, mix = [], [[] for _ in range(n_channels)]
+    for ch in range(n_channels):
+        r = np.sort(np.concatenate([rng.uniform(2.0, 12.0, 6), 5.0 + 0.02 * rng.random(3)]))
+        for rk in r:
+            w = rng.choice([rng.uniform(0.001, 0.6), rng.uniform(0.6, 2.5)])
+            a = rng.normal(size=(2, 2))
+            p = a @ a.T * 0.01 + np.diag([1e-3, 0.05])
+            m = np.array([rk, rng.normal()])
+            amp = rng.uniform(0.1, 2.0)
+            rows.append([w, p[0, 0], p[0, 1], p[1, 1], rk + ch * span, m[1], amp, ch])
+            mix[ch].append({"w": w, "m": m, "P": p, "amp": amp})
+    return np.array(rows), mix
+
+
+@pytest.mark.parametrize("max_components", [60, 12])
+def test_range_phd_kernel_matches_reference_from_random_mixtures(max_components):
+    rng = np.random.default_rng(5)
+    span = 1.0e6
+    n_repeated = n_merged = 0
+    for trial in range(40):
+        phd = RangeGmPhdFilter(
+            n_channels=2,
+            detection_probability=0.3,  # weights survive a missed frame above 1.5
+            clutter_intensity=0.05,
+            max_components=max_components,
+        )
+        x, mix = _random_mixture(rng, 2, span)
+        ref = ReferenceRangePhd(phd)
+        ref.mix, ref.t = mix, 1.0
+        dt = rng.choice([0.0, 0.02, 0.05])
+        k = int(rng.integers(0, 8))
+        ch = np.sort(rng.integers(0, 2, k))
+        r = rng.uniform(2.0, 12.0, k)
+        order = np.lexsort((r, ch))
+        r, ch = r[order], ch[order].astype(np.intp)
+        a = rng.uniform(0.1, 2.0, k)
+        transition = phd._prediction(dt) if dt else np.zeros(kernels.N_TRANSITION)
+        x_new, est = kernels.range_phd_step(x, transition, r, a, ch, phd._par)
+        want = ref.step(1.0 + dt, r.tolist(), a.tolist(), ch.tolist())
+        np.testing.assert_allclose(est, want.reshape(-1, 5), rtol=1e-9, atol=1e-8, err_msg=trial)
+        # the mixture itself, row by row in (channel, range) order
+        got_mix = [
+            [row[0], row[1], row[2], row[3], row[4] - row[7] * span, row[5], row[6]]
+            for row in x_new.tolist()
+        ]
+        want_mix = [
+            [c["w"], c["P"][0, 0], c["P"][0, 1], c["P"][1, 1], c["m"][0], c["m"][1], c["amp"]]
+            for comps in ref.mix
+            for c in comps
+        ]
+        np.testing.assert_allclose(got_mix, want_mix, rtol=1e-9, atol=1e-8, err_msg=trial)
+        assert len(x_new) <= max_components
+        n_repeated += len(est) > len({tuple(e) for e in est.tolist()})
+        n_merged += len(x_new) < np.count_nonzero(x[:, 0] * (1 - 0.3) > 1e-3)
+    assert n_repeated >= 5 and n_merged >= 5  # both paths were exercised
+
+
+def test_range_phd_kernel_edge_cases():
+    phd = RangeGmPhdFilter(n_channels=1)
+    empty = np.empty(0)
+    # nothing at all
+    x, est = kernels.range_phd_step(
+        np.empty((0, 8)), np.zeros(7), empty, empty, np.empty(0, np.intp), phd._par
+    )
+    assert x.shape == (0, 8) and est.shape == (0, 5)
+    # a first detection is born with the birth weight, below the extraction threshold
+    x, est = kernels.range_phd_step(
+        x, np.zeros(7), np.array([4.0]), np.array([1.0]), np.zeros(1, np.intp), phd._par
+    )
+    assert x.tolist() == [[0.1, 0.05**2, 0.0, 4.0, 4.0, 0.0, 1.0, 0.0]]
+    assert est.shape == (0, 5)
+    # the public step converts other integer channel types to the kernel's signature
+    out = phd.step_detections(0.02, np.array([4.0]), np.array([1.0]), np.zeros(1, np.int32))
+    assert out.shape[1] == 5
+
+
+def test_kernels_work_without_a_writable_numba_cache(tmp_path):
+    """With no usable cache directory numba refuses ``cache=True``; the kernels then compile
+    in memory (one warning) and give the same estimates."""
+    code = (
+        "import numpy as np\n"
+        "from node_agent.dsp import RangeGmPhdFilter\n"
+        "f = RangeGmPhdFilter()\n"
+        "for k in range(5):\n"
+        "    r, a = f.step(0.02 * k, [4.0 + 0.01 * k, 7.0], [1.0, 0.5])\n"
+        "print(np.round(r, 9).tolist())\n"
+    )
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        # the only cache locator numba may use points below a regular file: not creatable,
+        # even for root (file permissions alone do not stop root)
+        "NUMBA_CACHE_LOCATOR_CLASSES": "UserProvidedCacheLocator",
+        "NUMBA_CACHE_DIR": str(blocked / "numba"),
+    }
+    res = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=240
+    )
+    assert res.returncode == 0, res.stderr
+    assert "numba cache unavailable, compiling in memory" in res.stderr
+    f = RangeGmPhdFilter()
+    for k in range(5):
+        r, _ = f.step(0.02 * k, [4.0 + 0.01 * k, 7.0], [1.0, 0.5])
+    assert res.stdout.strip() == str(np.round(r, 9).tolist())
+    assert len(r) == 2  # both echoes confirmed after five frames

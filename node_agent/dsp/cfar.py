@@ -34,6 +34,9 @@ class GaussianCfarDetector:
     \\operatorname{erfc}^{-1}(2 P_{fa})` on magnitudes (complex baseband). Threshold
     crossings are reduced to local maxima of :math:`|y_k - \\mu_k|` at least one pulse
     width (:math:`\\approx c / B`) apart, refined to sub-sample range by a parabola.
+    Real samples go through the compiled kernel
+    :func:`node_agent.dsp.kernels.cfar_detect_real` in one pass; complex baseband through
+    numpy.
 
     Parameters
     ----------
@@ -105,6 +108,14 @@ class GaussianCfarDetector:
         self._mean: npt.NDArray[np.float32] | None = None
         self._var: npt.NDArray[np.float32] | None = None
         self._floor = np.empty(0, dtype=np.float32)
+        # imported here: numba's import and the kernel's (cached) compile are paid only by
+        # processes that detect
+        from . import kernels
+
+        self._kernel = kernels.cfar_detect_real
+        self._rates = np.array(
+            [self._clip2, self._alpha_noise, self._alpha_crossing], dtype=np.float32
+        )
 
     def set_min_range(self, min_range: float | FloatArray) -> None:
         """Change the per-receiver shortest searched range, m (geometry change)."""
@@ -167,23 +178,23 @@ class GaussianCfarDetector:
             if not self._initialise(s):
                 return _EMPTY
         var = self._var
-        # padded squared deviations: the padding columns stay 0 and never cross
+        if self._mean is None:
+            # real samples: the whole frame in one compiled pass, the same arithmetic as
+            # the numpy form below (node_agent.dsp.kernels.cfar_detect_real)
+            return self._kernel(
+                s, var, self._k2, self._floor, self._padded_ranges, self._rates, half, self._step
+            )
+        # complex baseband: magnitudes against their tracked mean, in numpy.
+        # Padded squared deviations: the padding columns stay 0 and never cross
         stat = self._stat
         inner = stat[:, half : width - half]
-        if self._mean is not None:
-            d = s - self._mean[:, half : width - half]
-            self._mean[:, half : width - half] += self.alpha * d
-            np.multiply(d, d, out=inner)
-            # magnitudes below the mean are never echoes: one-sided test
-            d2 = self._d2
-            np.copyto(d2[:, half : width - half], inner)
-            d2[:, half : width - half][d <= 0] = 0.0
-        else:
-            # row by row: a 2-D ufunc on the strided padded view goes through numpy's
-            # buffered iterator (a copy of the frame), 1-D contiguous rows do not
-            for row, out in zip(s, inner, strict=True):
-                np.multiply(row, row, out=out)
-            d2 = stat
+        d = s - self._mean[:, half : width - half]
+        self._mean[:, half : width - half] += self.alpha * d
+        np.multiply(d, d, out=inner)
+        # magnitudes below the mean are never echoes: one-sided test
+        d2 = self._d2
+        np.copyto(d2[:, half : width - half], inner)
+        d2[:, half : width - half][d <= 0] = 0.0
         limit = np.multiply(self._k2, var, out=self._limit)
         crossing = d2 > limit
         # crossings are sparse: the peak search and the censoring mask work on their flat
@@ -240,10 +251,10 @@ class GaussianCfarDetector:
         self._var = np.repeat(var0, shape[1], axis=1).astype(np.float32)
         # an array floor: a ufunc with a scalar operand pays a dtype resolution
         self._floor = np.full(shape, 1e-6 * float(np.min(var0)), dtype=np.float32)
-        self._rate = np.empty(shape, dtype=np.float32)
-        self._limit = np.empty(shape, dtype=np.float32)
-        self._stat = np.zeros(shape, dtype=np.float32)
-        if self.complex_input:
+        if self.complex_input:  # buffers of the numpy form (real samples use the kernel)
+            self._rate = np.empty(shape, dtype=np.float32)
+            self._limit = np.empty(shape, dtype=np.float32)
+            self._stat = np.zeros(shape, dtype=np.float32)
             self._mean = np.repeat(mean, shape[1], axis=1).astype(np.float32)
             self._d2 = np.zeros(shape, dtype=np.float32)
         return True

@@ -381,3 +381,120 @@ def range_phd_step(x, transition, ranges, amplitudes, channels, par):  # pragma:
                 est[e, 4] = xp[j, CH]
                 e += 1
     return xp, est
+
+
+@_njit(
+    "Tuple((float64[:], float64[:], intp[:]))"
+    "(float32[:, :], float32[:, :], float32[:, :], float32[:, :], float64[:], float32[:],"
+    " intp, float64)"
+)
+def cfar_detect_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pragma: no cover
+    """One frame of the Gaussian adaptive-threshold (CFAR) detector on real samples.
+
+    The Neyman-Pearson test of Section 9.2 of the CoLOR chapter, per range bin ``k``,
+    :math:`y_k^2 > \\kappa_k \\sigma_k^2` with :math:`\\kappa_k = (\\sqrt{2}\\,
+    \\operatorname{erfc}^{-1}(P_{fa}))^2` (infinite where the bin is switched off), then the
+    exponential update of the noise variance with the squared sample clipped at
+    ``clip2`` times the variance,
+
+    .. math::
+
+        \\sigma_k^2 \\leftarrow \\max\\big(\\sigma_k^2 + \\alpha_k (\\min(y_k^2,
+        c\\, \\sigma_k^2) - \\sigma_k^2),\\ \\sigma_{floor}^2\\big)
+
+    at the slow rate :math:`\\alpha_k = \\alpha_{cross}` within ``half`` bins of a crossing,
+    :math:`\\alpha_{noise}` elsewhere. A crossing is a peak when its :math:`y_k^2` is the
+    first maximum within ``half`` bins; its range is refined by the parabola through the
+    envelope :math:`|y|` at the peak and its two neighbours. Arithmetic is float32 where
+    the numpy form of :class:`~node_agent.dsp.cfar.GaussianCfarDetector` is, in the same
+    order, so both give the same bits.
+
+    Parameters
+    ----------
+    s : ndarray, float32, shape (n_rx, m)
+        Background-subtracted samples of the range window.
+    var : ndarray, float32, shape (n_rx, m + 2 half)
+        Noise variance per padded bin; updated in place.
+    k2, floor : ndarray, float32, shape (n_rx, m + 2 half)
+        Squared threshold factor (inf: bin off) and variance floor per padded bin.
+    padded_ranges : ndarray, float64, shape (m + 2 half,)
+        Range of each padded bin, m.
+    rates : ndarray, float32, shape (3,)
+        ``(clip2, alpha_noise, alpha_cross)``.
+    half : int
+        Half the pulse width in bins (the padding on each side).
+    step : float
+        Range step between bins, m.
+
+    Returns
+    -------
+    ranges, amplitudes : ndarray, float64, shape (k,)
+        Detected ranges (m) and peak amplitudes :math:`|y_k|`, sorted by (row, range).
+    rows : ndarray, intp, shape (k,)
+        Row of ``s`` of each detection.
+    """
+    n_rx, m = s.shape
+    width = m + 2 * half
+    clip2, a_noise, a_cross = rates[0], rates[1], rates[2]
+    zero = np.float32(0.0)
+    d2 = np.zeros(width, dtype=np.float32)  # one padded row of squared samples
+    rate = np.empty(width, dtype=np.float32)
+    cross = np.empty(m, dtype=np.intp)
+    out_r = np.empty(n_rx * m)
+    out_a = np.empty(n_rx * m)
+    out_c = np.empty(n_rx * m, dtype=np.intp)
+    n_out = 0
+    frac_scale = 0.5 * step
+    for row in range(n_rx):
+        n_cross = 0
+        for i in range(m):
+            c = i + half
+            v = s[row, i]
+            d = v * v
+            d2[c] = d
+            if d > k2[row, c] * var[row, c]:
+                cross[n_cross] = c
+                n_cross += 1
+        # the slow rate within a pulse width of a crossing (a passing person does not mask
+        # itself), then the clipped variance update over the whole padded row
+        for c in range(width):
+            rate[c] = a_noise
+        for q in range(n_cross):
+            for c in range(cross[q] - half, cross[q] + half + 1):
+                rate[c] = a_cross
+        for c in range(width):
+            vr = var[row, c]
+            lim = vr * clip2
+            st = d2[c]
+            lo = st if (st < lim or st != st) else lim
+            nv = vr + (lo - vr) * rate[c]
+            fl = floor[row, c]
+            var[row, c] = nv if (nv > fl or nv != nv) else fl
+        # peaks: the first maximum within one pulse width
+        for q in range(n_cross):
+            c = cross[q]
+            centre = d2[c]
+            peak = True
+            for j in range(c - half, c):
+                if not d2[j] < centre:
+                    peak = False
+                    break
+            if peak:
+                for j in range(c + 1, c + half + 1):
+                    if d2[j] > centre:
+                        peak = False
+                        break
+            if not peak:
+                continue
+            a_m = math.sqrt(np.float64(d2[c - 1]))
+            amp = math.sqrt(np.float64(centre))
+            a_p = math.sqrt(np.float64(d2[c + 1]))
+            den = a_m - 2.0 * amp + a_p
+            frac = (a_m - a_p) / min(den, -1e-300)
+            out_r[n_out] = padded_ranges[c] + frac * frac_scale
+            out_a[n_out] = amp
+            out_c[n_out] = row
+            n_out += 1
+        for c in range(half, width - half):
+            d2[c] = zero
+    return out_r[:n_out].copy(), out_a[:n_out].copy(), out_c[:n_out].copy()

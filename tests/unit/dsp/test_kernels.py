@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from node_agent.dsp import RangeGmPhdFilter, kernels
+from node_agent.dsp import GaussianCfarDetector, RangeGmPhdFilter, kernels
 
-from .test_reference_equivalence import ReferenceRangePhd
+from .test_reference_equivalence import ReferenceCfar, ReferenceRangePhd
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -95,6 +95,35 @@ def test_range_phd_kernel_edge_cases():
     # the public step converts other integer channel types to the kernel's signature
     out = phd.step_detections(0.02, np.array([4.0]), np.array([1.0]), np.zeros(1, np.int32))
     assert out.shape[1] == 5
+
+
+def test_cfar_kernel_matches_reference_on_edges_and_flat_tops():
+    """Echoes cut at either end of the window, flat tops (two equal maxima: one peak, the
+    first), a receiver switched off by its minimum range; detections and the variance
+    state against the bin-by-bin reference."""
+    rng = np.random.default_rng(4)
+    ranges = 2.0 + 0.05 * np.arange(300)
+    min_range = np.array([0.0, 2.5, 100.0])  # the third receiver searches nothing
+    det = GaussianCfarDetector(1e-3, ranges=ranges, pulse_width=0.15, min_range=min_range)
+    ref = ReferenceCfar(det, ranges, min_range)
+    n_flat = n_edge = 0
+    for k in range(30):
+        y = rng.standard_normal((3, 300)).astype(np.float32)
+        y[:, 0] = 9.0  # cut echo at the window's first sample (receiver 0 searches there)
+        y[0, 150 + k : 152 + k] = np.float32(8.0)  # flat top
+        y[1, -2:] = np.float32([5.0, 10.0])  # rising into the window's end
+        y[2, 100] = 20.0  # never reported: receiver 2 is switched off
+        got = det.detect(y)
+        want = ref.step(y)
+        assert got[2].tolist() == want[2], k
+        np.testing.assert_allclose(got[0], want[0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-12)
+        np.testing.assert_array_equal(det._var[:, det._half : -det._half], ref.var)
+        # a flat top's parabola peaks half-way between its two samples
+        n_flat += int(np.any(np.abs(got[0] - ranges[150 + k] - 0.025) < 1e-9))
+        n_edge += int(np.any(got[0] < ranges[0] + 0.03)) + int(got[0][-1] > ranges[-2])
+    print(f"flat tops found {n_flat}/30, edge echoes {n_edge}/60")
+    assert n_flat >= 20 and n_edge >= 40
 
 
 def test_kernels_work_without_a_writable_numba_cache(tmp_path):

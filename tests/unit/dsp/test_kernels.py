@@ -128,7 +128,7 @@ def test_cfar_kernel_matches_reference_on_edges_and_flat_tops():
 
 def test_kernels_work_without_a_writable_numba_cache(tmp_path):
     """With no usable cache directory numba refuses ``cache=True``; the kernels then compile
-    in memory (one warning) and give the same estimates."""
+    in memory (a warning per kernel) and give the same estimates."""
     code = (
         "import numpy as np\n"
         "from node_agent.dsp import RangeGmPhdFilter\n"

@@ -835,7 +835,7 @@ class GmPhdTracker(Tracker):
             profiles[c] = profile
         v = vis[:, cols]
         rbin = np.searchsorted(edges, np.linalg.norm(d[:, cols], axis=2))  # (J, S')
-        sight = self._sights([scans[i] for i in cols.tolist()], xy)
+        sight = self._sights([scans[i] for i in cols.tolist()], xy, v)
         pd = np.where(v, profiles[np.arange(cols.size), rbin], 0.0) * sight
         if cfg.occluded_factor < 1.0 and n_j > 1:
             pd *= np.where(self._occluded_many(origin[cols], mix), cfg.occluded_factor, 1.0)
@@ -868,14 +868,20 @@ class GmPhdTracker(Tracker):
                     )
         return pd_js
 
-    def _sights(self, scans: Sequence[SensorScan], xy: FloatArray) -> FloatArray:
-        """The ``sight`` factor of each scan's sensor at ``xy``, shape (J, S)."""
+    def _sights(
+        self, scans: Sequence[SensorScan], xy: FloatArray, vis: npt.NDArray[np.bool_]
+    ) -> FloatArray:
+        """The ``sight`` factor of each scan's sensor at ``xy``, shape (J, S); 1 where
+        ``vis`` (J, S) is false (outside the sensor's view the factor does not matter)."""
         if self.sight is None:
             return np.ones((xy.shape[0], len(scans)))
-        many = getattr(self.sight, "many", None)
-        if many is not None:
-            return many([scan.origin for scan in scans], xy)
-        return np.stack([self.sight(scan, xy) for scan in scans], axis=1)
+        pairs = getattr(self.sight, "pairs", None)
+        if pairs is None:
+            return np.stack([self.sight(scan, xy) for scan in scans], axis=1)
+        out = np.ones((xy.shape[0], len(scans)))
+        j, s = np.nonzero(vis)
+        out[j, s] = pairs(np.array([scan.origin for scan in scans])[s], xy[j])
+        return out
 
     def _occluded_many(self, origins: FloatArray, mix: _Mixture) -> npt.NDArray[np.bool_]:
         """:meth:`_occluded` for sensors at ``origins`` (S, 2) at once, shape (J, S)."""

@@ -107,14 +107,15 @@ def test_frame_detection_of_all_sensors_at_once_equals_the_per_sensor_loop(walls
     assert "far" not in loop.detection_profiles  # a sensor that sees nobody learns nothing
 
 
-def test_wall_sight_many_equals_one_sensor_at_a_time() -> None:
+def test_wall_sight_of_pairs_equals_one_sensor_at_a_time() -> None:
     model = WallSightModel(
         [[10.0, 0.0], [0.0, 0.0], [3.0, 5.0]], [[10.0, 8.0], [0.0, 8.0], [9.0, 5.0]], factor=0.2
     )
     rng = np.random.default_rng(2)
     origins = rng.uniform([-2, -1], [14, 9], (7, 2))
     xy = rng.uniform([-2, -1], [14, 9], (30, 2))
-    many = model.many(origins, xy)
+    many = model.pairs(np.repeat(origins, len(xy), axis=0), np.tile(xy, (len(origins), 1)))
+    many = many.reshape(len(origins), len(xy)).T
     for s, o in enumerate(origins):
         scan = SensorScan(
             sensor="x", t=0.0, positions=np.zeros((0, 2)), cov=np.zeros((0, 2, 2)), origin=o

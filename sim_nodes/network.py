@@ -217,6 +217,7 @@ class SimNetwork:
             nid: Fluctuation(self.crowd.n_points, ch.fluctuation_time, self._rng[nid])
             for nid in self._nodes
         }
+        self._load_kernel()
         # Static nodes: coupling + walls never change, so their spectrum is computed once.
         if ch.model == "hybrid":
             channel = hybrid_channel(scenario, np.random.default_rng(children[-1]))
@@ -230,6 +231,15 @@ class SimNetwork:
                 )
                 for nid, node in self._nodes.items()
             }
+
+    def _load_kernel(self) -> None:
+        """Call the compiled people-echo kernel once, on the first node, and drop the result:
+        numba loads it from its cache (0.5 s) or compiles it (3 s) now, while the network is
+        built, not in a node's first TDMA slots. No random draw: the outputs are unchanged."""
+        nid = next(iter(self._nodes))
+        local = self._local[nid]
+        if local is not None:
+            self._people_spectrum_fast(self._nodes[nid], local, np.ones(self.crowd.n_points), 0.0)
 
     def _local_view(self, node: _Node) -> _LocalView:
         """What of the building can matter to ``node``'s people echoes, found once.

@@ -110,6 +110,10 @@ class Vec(Conv):
             raise DecodeError(f"field {where!r}: expected a list, got {_type_name(value)}")
         if self.n is not None and len(value) != self.n:
             raise DecodeError(f"field {where!r}: expected {self.n} numbers, got {len(value)}")
+        # Fast path for the usual all-float list (every detections message has a few): the
+        # per-element check below builds a field name for each number.
+        if all(type(x) is float for x in value) and all(map(math.isfinite, value)):
+            return tuple(value)
         return tuple(Float().decode(x, f"{where}[{i}]") for i, x in enumerate(value))
 
 

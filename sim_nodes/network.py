@@ -33,6 +33,7 @@ from sim_nodes.channel import (
 from sim_nodes.channel.antenna import AntennaPattern, HornPattern, OmniPattern
 from sim_nodes.channel.geometry import segment_point_distance, wall_side
 from sim_nodes.channel.hybrid import HybridChannel
+from sim_nodes.channel.kernels import body_echo_paths
 from sim_nodes.channel.raytrace import AntennaArray
 from sim_nodes.channel.synth import frequency_response
 from sim_nodes.propagation import hybrid_channel, table_pattern
@@ -121,6 +122,18 @@ class _LocalView:
     walkers: npt.NDArray[np.int64]
     walls: Walls
     antenna_side: npt.NDArray[np.float64]
+    #: The body points of ``walkers`` (flat crowd indices, ascending) and each one's
+    #: position in ``walkers``.
+    points: npt.NDArray[np.int64]
+    point_owner: npt.NDArray[np.int64]
+    #: Tx and Rx antennas stacked (positions, boresights, beam widths), and the walls' excess
+    #: lengths (zeros if the walls have none), as the compiled kernel takes them.
+    antenna_pos: npt.NDArray[np.float64]
+    antenna_boresight: npt.NDArray[np.float64]
+    antenna_beamwidth: npt.NDArray[np.float64]
+    wall_excess: npt.NDArray[np.float64]
+    #: Body radii of ``walkers``, m.
+    radius: npt.NDArray[np.float64]
 
 
 class SimNetwork:
@@ -204,6 +217,7 @@ class SimNetwork:
             nid: Fluctuation(self.crowd.n_points, ch.fluctuation_time, self._rng[nid])
             for nid in self._nodes
         }
+        self._load_kernel()
         # Static nodes: coupling + walls never change, so their spectrum is computed once.
         if ch.model == "hybrid":
             channel = hybrid_channel(scenario, np.random.default_rng(children[-1]))
@@ -217,6 +231,15 @@ class SimNetwork:
                 )
                 for nid, node in self._nodes.items()
             }
+
+    def _load_kernel(self) -> None:
+        """Call the compiled people-echo kernel once, on the first node, and drop the result:
+        numba loads it from its cache (0.5 s) or compiles it (3 s) now, while the network is
+        built, not in a node's first TDMA slots. No random draw: the outputs are unchanged."""
+        nid = next(iter(self._nodes))
+        local = self._local[nid]
+        if local is not None:
+            self._people_spectrum_fast(self._nodes[nid], local, np.ones(self.crowd.n_points), 0.0)
 
     def _local_view(self, node: _Node) -> _LocalView:
         """What of the building can matter to ``node``'s people echoes, found once.
@@ -252,10 +275,20 @@ class SimNetwork:
             )
         near = walls.take(near_walls)
         ant = np.concatenate([node.tx.position, node.rx.position])
+        owner_of = np.full(len(self.crowd.walkers), -1, np.int64)
+        owner_of[walkers] = np.arange(walkers.size)
+        points = np.flatnonzero(owner_of[self.crowd.point_person] >= 0)
         return _LocalView(
             walkers=walkers,
             walls=near,
             antenna_side=wall_side(ant, near) if near.count else np.zeros((ant.shape[0], 0)),
+            points=points,
+            point_owner=owner_of[self.crowd.point_person[points]],
+            antenna_pos=ant,
+            antenna_boresight=np.concatenate([node.tx.boresight, node.rx.boresight]),
+            antenna_beamwidth=np.concatenate([node.tx.beamwidth, node.rx.beamwidth]),
+            wall_excess=np.zeros(near.count) if near.excess is None else near.excess,
+            radius=self.crowd.radius[walkers],
         )
 
     def _hybrid_spectrum(self, channel: HybridChannel, node: _Node) -> np.ndarray:
@@ -335,7 +368,9 @@ class SimNetwork:
         The static channel (coupling, walls, static scatterers) is computed once per node in
         ``__init__``; per call only the people's single-bounce paths are synthesised, and
         (unless ``reference``) only with the people and walls that can reach the node
-        (:meth:`_local_view`) and the antennas' wall sides computed once.
+        (:meth:`_local_view`) and the antennas' wall sides computed once, by the compiled
+        kernel :func:`sim_nodes.channel.kernels.body_echo_paths` (the same arithmetic as the
+        reference's :meth:`Crowd.scatterers` and :func:`scatter_paths`, in one loop).
 
         Returns
         -------
@@ -344,6 +379,8 @@ class SimNetwork:
         nd = self._nodes[node]
         local = self._local[node]
         amp_fluct = self._fluct[node].step(t)
+        if local is not None:
+            return self._people_spectrum_fast(nd, local, amp_fluct, t)
         if local is None:
             body = self.crowd.scatterers(t)
             walls, antenna_side = self.walls, None
@@ -382,6 +419,45 @@ class SimNetwork:
         )
         amps = amps * (BODY_REFLECTION_SIGN * amp_fluct[body.index])[None, :]
         return self.radar.path_spectrum(delays, amps)
+
+    def _people_spectrum_fast(
+        self, nd: _Node, local: _LocalView, amp_fluct: np.ndarray, t: float
+    ) -> np.ndarray:
+        crowd, walls = self.crowd, local.walls
+        n_rx = nd.rx.position.shape[0]
+        delays = np.empty((n_rx, local.points.size))
+        amps = np.empty((n_rx, local.points.size))
+        count = body_echo_paths(
+            t,
+            crowd.state(t, local.walkers.tolist()),
+            local.points,
+            local.point_owner,
+            crowd.body_point,
+            crowd.body_normal,
+            crowd.gait_phase,
+            crowd.point_height,
+            crowd.point_rcs,
+            BODY_REFLECTION_SIGN * amp_fluct,
+            crowd.gait_amplitude,
+            crowd.breathing_amplitude,
+            local.radius,
+            self.people_range,
+            local.antenna_pos,
+            local.antenna_boresight,
+            local.antenna_beamwidth,
+            local.antenna_side,
+            walls.start,
+            walls.end,
+            walls.height,
+            walls.transmission,
+            local.wall_excess,
+            float(self.scenario.channel.shadow_db),
+            delays,
+            amps,
+        )
+        if count == 0:
+            return np.zeros((n_rx, self.radar.n_bins), complex)
+        return self.radar.path_spectrum(delays[:, :count], amps[:, :count])
 
     def acquire(self, node: str, t: float) -> tuple[str, tuple[str, ...], npt.NDArray[np.float32]]:
         """One acquisition of ``node``'s own transmitter at its receivers.

@@ -735,37 +735,13 @@ class GmPhdTracker(Tracker):
             xy = mix.m[:, ::2]
             heavy = mix.w > 0.5
             near = np.linalg.norm(xy[heavy, None, :] - z[None, :, :], axis=2) < cfg.cluster_distance
-            edges = np.asarray(cfg.detection_range_bins)
-            for i, scan in enumerate(scans):
-                vis = in_field_of_view(scan, xy, cfg.fov_margin)
-                if not vis.any():
-                    continue
-                profile = self.detection_profiles.get(scan.sensor)
-                if profile is None:
-                    profile = np.full(edges.size + 1, cfg.detection_probability)
-                    self.detection_profiles[scan.sensor] = profile
-                dist = np.linalg.norm(xy - scan.origin, axis=1)
-                rbin = np.searchsorted(edges, dist)
-                sight = self._sight(scan, xy)
-                pd_j = np.where(vis, profile[rbin], 0.0) * sight
-                if cfg.occluded_factor < 1.0 and mix.w.size > 1:
-                    pd_j = pd_j * np.where(self._occluded(scan, mix), cfg.occluded_factor, 1.0)
-                pd_js[:, i] = pd_j
-                if cfg.adapt_detection:
-                    seen = (vis & (sight >= 1.0))[heavy]
-                    if seen.any():
-                        hit = near[:, owner == i].any(axis=1)[seen]
-                        hb = rbin[heavy][seen]
-                        count = np.bincount(hb, minlength=profile.size)
-                        rate = np.bincount(hb, weights=hit, minlength=profile.size)
-                        upd = count > 0
-                        profile[upd] += cfg.adapt_rate * (rate[upd] / count[upd] - profile[upd])
-                        np.clip(
-                            profile,
-                            cfg.min_detection_probability,
-                            cfg.max_detection_probability,
-                            out=profile,
-                        )
+            if len({scan.sensor for scan in scans}) == n_s:
+                pd_js = self._frame_detection(scans, mix, xy, heavy, near, owner)
+            else:
+                # A sensor with several scans in the frame: its profile adapts scan by scan.
+                for i, scan in enumerate(scans):
+                    one = near[:, owner == i]
+                    pd_js[:, i] = self._frame_detection([scan], mix, xy, heavy, one, None)[:, 0]
         anchors = anchor_cov = None
         if mix.w.size:
             # One predicted position per established label: its heaviest component.
@@ -804,6 +780,130 @@ class GmPhdTracker(Tracker):
         kappa = kappa0 * cfg.clutter_coincidence ** (cells.sum(axis=1) - 1.0)
         fused = SensorScan(sensor="*", t=t, positions=zf, cov=Rf, origin=np.zeros(2))
         return self._update(fused, frame=(detect, miss, kappa))
+
+    def _frame_detection(
+        self,
+        scans: Sequence[SensorScan],
+        mix: _Mixture,
+        xy: FloatArray,
+        heavy: npt.NDArray[np.bool_],
+        near: npt.NDArray[np.bool_],
+        owner: npt.NDArray[np.intp] | None,
+    ) -> FloatArray:
+        """``p_D,s(m_j)`` of every component j for every sensor s of a frame, shape (J, S),
+        and the adaptation of the sensors' detection profiles (``adapt_detection``).
+
+        Per sensor: zero outside its field of view (``fov_margin``), else its learned profile
+        at the component's distance bin, times the ``sight`` factor and, for a component
+        shadowed by a heavier one, ``occluded_factor``. A profile bin moves by ``adapt_rate``
+        towards the fraction of established components (weight > 0.5) in clear sight in that
+        bin that have an estimate of the sensor within ``cluster_distance`` (``near``:
+        components x estimates; ``owner``: the scan of each estimate, ``None``: all from
+        the one scan). The sensors are distinct, so every profile adapts once: all sensors
+        are handled in one pass of array operations (at 100 sensors a loop over them cost
+        more than the rest of the update).
+        """
+        cfg = self.config
+        n_j, n_s = xy.shape[0], len(scans)
+        origin = np.array([scan.origin for scan in scans])  # (S, 2)
+        d = xy[:, None, :] - origin[None, :, :]  # (J, S, 2)
+        r2 = np.einsum("jsi,jsi->js", d, d)
+        max_range = np.array([scan.max_range for scan in scans])
+        vis = r2 <= (max_range + cfg.fov_margin) ** 2  # in_field_of_view, all sensors at once
+        beamwidth = np.array([scan.beamwidth for scan in scans])
+        sector = beamwidth < 2.0 * math.pi
+        if sector.any():
+            bearing = np.arctan2(d[..., 1], d[..., 0]) - np.array([s.boresight for s in scans])
+            off = np.abs((bearing + math.pi) % (2.0 * math.pi) - math.pi)
+            half = 0.5 * beamwidth
+            if cfg.fov_margin > 0.0:
+                with np.errstate(divide="ignore"):
+                    half = half + np.arcsin(np.minimum(1.0, cfg.fov_margin / np.sqrt(r2)))
+            vis &= (off <= half) | ~sector
+        active = vis.any(axis=0)  # sensors that see some component
+        pd_js = np.zeros((n_j, n_s))
+        if not active.any():
+            return pd_js
+        cols = np.flatnonzero(active)
+        edges = np.asarray(cfg.detection_range_bins)
+        profiles = np.empty((cols.size, edges.size + 1))
+        for c, i in enumerate(cols.tolist()):
+            profile = self.detection_profiles.get(scans[i].sensor)
+            if profile is None:
+                profile = np.full(edges.size + 1, cfg.detection_probability)
+                self.detection_profiles[scans[i].sensor] = profile
+            profiles[c] = profile
+        v = vis[:, cols]
+        rbin = np.searchsorted(edges, np.linalg.norm(d[:, cols], axis=2))  # (J, S')
+        sight = self._sights([scans[i] for i in cols.tolist()], xy, v)
+        pd = np.where(v, profiles[np.arange(cols.size), rbin], 0.0) * sight
+        if cfg.occluded_factor < 1.0 and n_j > 1:
+            pd *= np.where(self._occluded_many(origin[cols], mix), cfg.occluded_factor, 1.0)
+        pd_js[:, cols] = pd
+        if cfg.adapt_detection:
+            seen = (v & (sight >= 1.0))[heavy]  # (H, S')
+            if seen.any():
+                if owner is None:
+                    hit = np.broadcast_to(near.any(axis=1)[:, None], seen.shape)
+                else:
+                    by_sensor = np.zeros((near.shape[1], n_s), bool)
+                    by_sensor[np.arange(owner.size), owner] = True
+                    hit = (near.astype(np.int64) @ by_sensor[:, cols]) > 0
+                nb = edges.size + 1
+                flat = (np.arange(cols.size) * nb + rbin[heavy])[seen]
+                count = np.bincount(flat, minlength=cols.size * nb).reshape(cols.size, nb)
+                rate = np.bincount(flat, weights=hit[seen], minlength=cols.size * nb)
+                rate = rate.reshape(cols.size, nb)
+                for c, i in enumerate(cols.tolist()):
+                    upd = count[c] > 0
+                    if not upd.any():
+                        continue
+                    profile = self.detection_profiles[scans[i].sensor]
+                    profile[upd] += cfg.adapt_rate * (rate[c, upd] / count[c, upd] - profile[upd])
+                    np.clip(
+                        profile,
+                        cfg.min_detection_probability,
+                        cfg.max_detection_probability,
+                        out=profile,
+                    )
+        return pd_js
+
+    def _sights(
+        self, scans: Sequence[SensorScan], xy: FloatArray, vis: npt.NDArray[np.bool_]
+    ) -> FloatArray:
+        """The ``sight`` factor of each scan's sensor at ``xy``, shape (J, S); 1 where
+        ``vis`` (J, S) is false (outside the sensor's view the factor does not matter)."""
+        if self.sight is None:
+            return np.ones((xy.shape[0], len(scans)))
+        pairs = getattr(self.sight, "pairs", None)
+        if pairs is None:
+            return np.stack([self.sight(scan, xy) for scan in scans], axis=1)
+        out = np.ones((xy.shape[0], len(scans)))
+        j, s = np.nonzero(vis)
+        out[j, s] = pairs(np.array([scan.origin for scan in scans])[s], xy[j])
+        return out
+
+    def _occluded_many(self, origins: FloatArray, mix: _Mixture) -> npt.NDArray[np.bool_]:
+        """:meth:`_occluded` for sensors at ``origins`` (S, 2) at once, shape (J, S)."""
+        cfg = self.config
+        heavy = mix.w > 0.3
+        if heavy.sum() == 0:
+            return np.zeros((mix.w.size, origins.shape[0]), dtype=bool)
+        xy = mix.m[None, :, ::2] - origins[:, None, :]  # (S, J, 2)
+        occ, occ_label = xy[:, heavy], mix.label[heavy]  # (S, O, 2)
+        dist = np.linalg.norm(xy, axis=2)  # (S, J)
+        unit = xy / np.maximum(dist, 1e-9)[..., None]
+        along = occ @ np.swapaxes(unit, 1, 2)  # (S, O, J)
+        perp = np.abs(
+            occ[:, :, 0, None] * unit[:, None, :, 1] - occ[:, :, 1, None] * unit[:, None, :, 0]
+        )
+        shadows = (
+            (along > 0.0)
+            & (along < dist[:, None, :] - 2.0 * cfg.occlusion_radius)
+            & (perp < cfg.occlusion_radius)
+            & (occ_label[:, None] != mix.label[None, :])[None]
+        )
+        return shadows.any(axis=1).T
 
     def _occluded(self, scan: SensorScan, mix: _Mixture) -> npt.NDArray[np.bool_]:
         """Components shadowed, for ``scan``'s sensor, by a heavier component of another label

@@ -67,6 +67,24 @@ class WallSightModel:
             hit = (u > _END_MARGIN) & (u < 1 - _END_MARGIN) & (s >= 0.0) & (s <= 1.0)
         return hit.sum(axis=1)
 
+    def pairs(self, origins: npt.ArrayLike, xy: npt.ArrayLike) -> FloatArray:
+        """``factor ** crossings`` of the sight lines ``origins[k]`` -> ``xy[k]`` (both (K, 2)),
+        shape (K,): :meth:`__call__` for many (sensor, position) pairs at once (a frame's
+        components in the views of all its sensors)."""
+        o = np.asarray(origins, float).reshape(-1, 2)
+        p = np.asarray(xy, float).reshape(-1, 2)
+        if p.shape[0] == 0 or self.start.shape[0] == 0:
+            return np.ones(p.shape[0])
+        r = p - o  # (K, 2) sight lines
+        e = self.end - self.start  # (W, 2)
+        w = self.start[None, :, :] - o[:, None, :]  # (K, W, 2)
+        den = r[:, None, 0] * e[None, :, 1] - r[:, None, 1] * e[None, :, 0]  # (K, W)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
+            s = (w[..., 0] * r[:, None, 1] - w[..., 1] * r[:, None, 0]) / den
+            hit = (u > _END_MARGIN) & (u < 1 - _END_MARGIN) & (s >= 0.0) & (s <= 1.0)
+        return self.factor ** hit.sum(axis=1).astype(float)
+
     def __call__(self, scan: SensorScan, xy: FloatArray) -> FloatArray:
         """``factor ** crossings`` from the scan's array centre to each position, shape (J,)."""
         if xy.shape[0] == 0 or self.start.shape[0] == 0:

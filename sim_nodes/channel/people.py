@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -108,6 +109,11 @@ class Walker:
         velocity : ndarray, shape (2,), m/s
         heading : float, rad (direction of motion; kept when standing)
         """
+        x, y, vx, vy, heading = self.motion(t)
+        return np.array([x, y]), np.array([vx, vy]), heading
+
+    def motion(self, t: float) -> tuple[float, float, float, float, float]:
+        """:meth:`kinematics` as plain floats ``(x, y, vx, vy, heading)``."""
         # Plain floats: a polyline has a handful of vertices and numpy's per-call overhead
         # would dominate (this runs for every acquisition); its segments are measured once.
         wp, seg_len, total = self._polyline
@@ -124,9 +130,13 @@ class Walker:
             i += 1
         ux = (wp[i + 1][0] - wp[i][0]) / seg_len[i]
         uy = (wp[i + 1][1] - wp[i][1]) / seg_len[i]
-        pos = np.array([wp[i][0] + (arc - start) * ux, wp[i][1] + (arc - start) * uy])
-        vel = np.array([sign * moving * self.speed * ux, sign * moving * self.speed * uy])
-        return pos, vel, math.atan2(sign * uy, sign * ux)
+        return (
+            wp[i][0] + (arc - start) * ux,
+            wp[i][1] + (arc - start) * uy,
+            sign * moving * self.speed * ux,
+            sign * moving * self.speed * uy,
+            math.atan2(sign * uy, sign * ux),
+        )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -198,6 +208,11 @@ class Crowd:
         self._body_point = np.stack([a * np.cos(th), b * np.sin(th)], axis=1)
         nb = np.stack([np.cos(th) / a, np.sin(th) / b], axis=1)
         self._body_normal = nb / np.maximum(np.linalg.norm(nb, axis=1, keepdims=True), 1e-12)
+        # Read-only views of the per-point description for the compiled people echoes
+        # (sim_nodes.channel.kernels), shape (n_points, ...), and the per-person radii.
+        self.body_point, self.body_normal = self._body_point, self._body_normal
+        self.gait_phase, self.point_height = self._gait_phase, self._dz
+        self.point_rcs, self.point_person, self.radius = self._weights, self._person, self._radius
 
     def truth(self, t: float) -> list[dict]:
         """Ground truth ``{id, x, y, vx, vy}`` of the people present at t."""
@@ -216,6 +231,22 @@ class Crowd:
                 )
         return out
 
+    def state(self, t: float, walkers: Iterable[int]) -> npt.NDArray[np.float64]:
+        """Per person of ``walkers`` (indices into the crowd) at time t: present (1/0), x, y
+        (m), heading (rad), speed (m/s) and the sine of the breathing phase; shape (M, 6),
+        zeros for an absent person."""
+        # The loop is over a handful of people (kinematics on each polyline); the points
+        # themselves are handled as arrays.
+        walkers = list(walkers)
+        per = np.zeros((len(walkers), 6))
+        for row, i in enumerate(walkers):
+            w = self.walkers[i]
+            if w.present(t):
+                x, y, vx, vy, psi = w.motion(t)
+                phase = 2 * math.pi * w.breathing_rate * t + w.breathing_phase
+                per[row] = (1.0, x, y, psi, math.hypot(vx, vy), math.sin(phase))
+        return per
+
     def scatterers(self, t: float, walkers: npt.NDArray[np.int_] | None = None) -> BodyScatterers:
         """Body scatterers of the present people at time t.
 
@@ -232,15 +263,11 @@ class Crowd:
 
         with ``n_k`` the outward ellipse normal (breathing), ``A_g`` the gait amplitude.
         """
-        # The loop is over a handful of people (kinematics on each polyline); the points
-        # themselves are handled as arrays.
         per = np.zeros((len(self.walkers), 6))
-        for i in range(len(self.walkers)) if walkers is None else walkers.tolist():
-            w = self.walkers[i]
-            if w.present(t):
-                pos, vel, psi = w.kinematics(t)
-                phase = 2 * math.pi * w.breathing_rate * t + w.breathing_phase
-                per[i] = (1.0, pos[0], pos[1], psi, math.hypot(vel[0], vel[1]), math.sin(phase))
+        if walkers is None:
+            per[:] = self.state(t, range(len(self.walkers)))
+        else:
+            per[walkers] = self.state(t, walkers.tolist())
         here = per[:, 0] > 0
         sel = np.flatnonzero(here[self._person])
         person = self._person[sel]

@@ -101,26 +101,42 @@ def _run_nodes(
     seed: int,
     net: str,
     hub: str,
-    start: float,
+    clock: Any,
     publish_ir: bool,
     ready: Any,
     stop: Any,
 ) -> None:
     """The simulated nodes' process: one zenoh session and node agent per node, and the
-    simulator's truth publisher. Runs until ``stop`` is set (or Ctrl-C)."""
+    simulator's truth publisher. Runs until ``stop`` is set (or Ctrl-C).
+
+    ``clock`` is the :class:`_NodesClock` hand-shake: the process first loads everything that
+    costs seconds of CPU (imports, the simulator, numba's kernels, the zenoh sessions), says so
+    through ``clock.loaded``, and only then learns the TDMA epoch, so that a slow start-up (a
+    cold numba cache, a busy machine) cannot eat into the first frames.
+    """
+    from node_agent.dsp import kernels  # noqa: F401  (compiles or loads the DSP kernels)
+
     network = SimNetwork(scenario, seed)
     truth_stop = threading.Event()
     try:
         with contextlib.ExitStack() as stack:
             sim_session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+            nodes = sorted(network.node_infos())
+            sessions = [
+                stack.enter_context(zenoh.open(session_config(connect=[hub]))) for _ in nodes
+            ]
+            clock.loaded.set()
+            while not clock.go.wait(0.2):
+                if stop.is_set():
+                    return
+            start = clock.epoch.value
             truth_thread = threading.Thread(
                 target=truth_loop, args=(sim_session, network, net, start, truth_stop)
             )
             truth_thread.start()
             stack.callback(truth_thread.join, 2.0)
             stack.callback(truth_stop.set)
-            for node in sorted(network.node_infos()):
-                session = stack.enter_context(zenoh.open(session_config(connect=[hub])))
+            for node, session in zip(nodes, sessions, strict=True):
                 driver = stack.enter_context(SimulatedDriver(network, node, start=start))
                 agent = NodeAgent(
                     session, driver, AgentConfig(node=node, net=net, publish_ir=publish_ir)
@@ -132,6 +148,16 @@ def _run_nodes(
                 pass
     except KeyboardInterrupt:
         pass  # the parent stops us through ``stop``; Ctrl-C reaches both processes
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _NodesClock:
+    """Start-up hand-shake with the nodes' process: ``loaded`` (set by the nodes), then
+    ``epoch`` (wall-clock TDMA epoch, s) and ``go`` (set by the demo)."""
+
+    loaded: Any
+    go: Any
+    epoch: Any
 
 
 def _table(
@@ -178,23 +204,55 @@ def _table(
     return Group(tracks, nodes)
 
 
+def _wait_for_nodes(event: Any, proc: Any, timeout: float, what: str) -> None:
+    """Wait for the nodes' process to set ``event``; a one-line error if it exits or times out."""
+    deadline = time.monotonic() + timeout
+    while not event.wait(0.2):
+        if not proc.is_alive():
+            raise RuntimeError(
+                f"the simulated nodes' process exited (code {proc.exitcode}) before it could {what}"
+            )
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the simulated nodes did not {what} within {timeout:.0f} s")
+
+
 def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, Any]:
     """Run the demo; returns its summary (also printed). Stops cleanly on KeyboardInterrupt."""
     console = console or Console()
-    # compile the node DSP's numba kernels into numba's cache before the clock starts: on a
-    # first run the nodes process would otherwise compile them (seconds of CPU) after the
-    # TDMA epoch; with a warm cache this is a 0.2 s load
-    from node_agent.dsp import kernels  # noqa: F401
-
     network = SimNetwork(config.scenario, config.seed)
     hub = f"tcp/127.0.0.1:{free_tcp_port()}"
-    # Network time is wall-clock time; scenario time 0 is the TDMA epoch, a little ahead so
-    # that every node has joined before the first frame.
-    start = time.time() + 0.5
     score = DemoScore()
     summary: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
         fusion_session = stack.enter_context(zenoh.open(session_config(listen=[hub])))
+        # The nodes run in their own process (spawned: zenoh sessions do not survive fork),
+        # as on separate hosts, and so that the fusion center has a core of its own.
+        ctx = multiprocessing.get_context("spawn")
+        ready, stop_nodes = ctx.Event(), ctx.Event()
+        clock = _NodesClock(ctx.Event(), ctx.Event(), ctx.Value("d", 0.0))
+        recording = config.publish_ir or bool(config.record)
+        nodes_proc = ctx.Process(
+            target=_run_nodes,
+            args=(
+                config.scenario,
+                config.seed,
+                config.net,
+                hub,
+                clock,
+                recording,
+                ready,
+                stop_nodes,
+            ),
+            name="uwbnet-nodes",
+        )
+        nodes_proc.start()
+        stack.callback(nodes_proc.join, 10.0)
+        stack.callback(stop_nodes.set)
+        # A cold numba cache costs the nodes' process several seconds of compiling.
+        _wait_for_nodes(clock.loaded, nodes_proc, 120.0, "load")
+        # Network time is wall-clock time; scenario time 0 is the TDMA epoch, a little ahead so
+        # that every node has joined before the first frame.
+        start = time.time() + 1.0
         fusion = FusionService(
             fusion_session,
             FusionConfig(
@@ -229,30 +287,10 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             )
             recorder.start()
             stack.callback(recorder.stop)
-        # The nodes run in their own process (spawned: zenoh sessions do not survive fork),
-        # as on separate hosts, and so that the fusion center has a core of its own.
-        ctx = multiprocessing.get_context("spawn")
-        ready, stop_nodes = ctx.Event(), ctx.Event()
-        nodes_proc = ctx.Process(
-            target=_run_nodes,
-            args=(
-                config.scenario,
-                config.seed,
-                config.net,
-                hub,
-                start,
-                config.publish_ir or bool(recorder),
-                ready,
-                stop_nodes,
-            ),
-            name="uwbnet-nodes",
-        )
-        nodes_proc.start()
-        stack.callback(nodes_proc.join, 10.0)
-        stack.callback(stop_nodes.set)
+        clock.epoch.value = start
+        clock.go.set()
         n_nodes = len(network.node_infos())
-        if not ready.wait(30.0):
-            raise RuntimeError("the simulated nodes did not start within 30 s")
+        _wait_for_nodes(ready, nodes_proc, 30.0, "start")
         console.print(
             f"uwbnet demo: scenario {config.scenario.name}, {n_nodes} nodes, fusion "
             f"{config.method}, zenoh peers on {hub}"

@@ -103,6 +103,9 @@ def map_recording(
     infos: dict[str, NodeInfo] = {}
     mapper = None
     traj: list[list[float]] = []
+    # the odometry integrated alone (the baseline of --eval), first-pose frame
+    dead: list[list[float]] = []
+    dr_pose = np.zeros(3)
     truth: list[tuple[float, tuple[float, ...]]] = []
     t_start = time.perf_counter()
 
@@ -131,6 +134,9 @@ def map_recording(
                 log.warning("ir of %s rejected: needs two finite rows", msg.src)
                 continue
             stats.ir += 1
+            if msg.odom is not None and dead:
+                dr_pose = compose(dr_pose, np.asarray(msg.odom, float))
+            dead.append([msg.t, *dr_pose.tolist()])
             emit(mapper.step(msg.t, msg.h, msg.odom))
     if mapper is None:
         raise MappingError(f"{path}: no ir of a mobile node (robot) with its node_info")
@@ -164,8 +170,18 @@ def map_recording(
         if not truth:
             raise MappingError(f"{path}: no truth of robot {stats.robot} to evaluate against")
         first = np.array([truth[0][1][0], truth[0][1][1], truth[0][1][-1]], float)
-        stats.eval = evaluate_map(doc, scenario, truth_traj, first)
+        has_odom = any(np.any(r[1:] != 0) for r in dead)
+        stats.eval = evaluate_map(
+            doc, scenario, truth_traj, first, np.array(dead) if has_odom else None
+        )
     return stats
+
+
+def compose(pose: np.ndarray, increment: np.ndarray) -> np.ndarray:
+    """Pose ``[x, y, yaw]`` after an odometry increment ``(dx, dy, dyaw)`` given in its frame."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    dx, dy, da = increment
+    return np.array([pose[0] + c * dx - s * dy, pose[1] + s * dx + c * dy, pose[2] + da])
 
 
 def truth_first_frame(truth: list[tuple[float, tuple[float, ...]]]) -> np.ndarray | None:

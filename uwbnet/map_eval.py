@@ -15,7 +15,11 @@ Figures (metres, degrees):
   each, the nearest mapped corner within 0.5 m.
 * points: convex edges of the objects (their vertical edges away from the room walls); for each
   object, the nearest mapped point to its outline (``found`` within 15 cm).
-* trajectory: RMSE of the position and of the heading over all acquisitions.
+* trajectory: RMSE of the position and of the heading over all acquisitions, and the mean
+  position and heading error per stop (``per_stop_m``, ``per_stop_yaw_deg``: a stop is a run of
+  acquisitions at one true position, as the robot turns on the spot). With a dead-reckoning
+  trajectory (the odometry integrated alone), ``dead_reckoning`` holds the same figures for
+  it: the baseline the filter must beat.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ import math
 from typing import Any
 
 import numpy as np
+
+_MAX_STOPS = 200
 
 
 def _to_frame(xy: np.ndarray, origin: np.ndarray) -> np.ndarray:
@@ -90,7 +96,11 @@ def _stats(x: list[float]) -> dict[str, float | int]:
 
 
 def evaluate_map(
-    doc: dict[str, Any], scenario: Any, truth_traj: np.ndarray | None, first_pose: np.ndarray
+    doc: dict[str, Any],
+    scenario: Any,
+    truth_traj: np.ndarray | None,
+    first_pose: np.ndarray,
+    dead_reckoning: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Errors of ``doc`` (map.json) against ``scenario`` (see the module docstring).
 
@@ -100,6 +110,8 @@ def evaluate_map(
         True ``[t, x, y, yaw]`` in the first-pose frame.
     first_pose : ndarray, shape (3,)
         World ``[x, y, yaw]`` of the robot's first pose.
+    dead_reckoning : ndarray, shape (k, 4), optional
+        ``[t, x, y, yaw]`` of the odometry integrated alone, first-pose frame.
     """
     g = truth_geometry(scenario)
     faces = np.hstack(
@@ -183,14 +195,33 @@ def evaluate_map(
     }
     traj = np.array(doc["trajectory"], float).reshape(-1, 4)
     if truth_traj is not None and len(traj):
-        idx = np.clip(np.searchsorted(truth_traj[:, 0], traj[:, 0] - 1e-9), 0, len(truth_traj) - 1)
-        tt = truth_traj[idx]
-        dp = np.linalg.norm(traj[:, 1:3] - tt[:, 1:3], axis=1)
-        dy = (traj[:, 3] - tt[:, 3] + np.pi) % (2 * np.pi) - np.pi
-        out["trajectory"] = {
-            "rmse_m": round(float(np.sqrt(np.mean(dp**2))), 3),
-            "max_m": round(float(dp.max()), 3),
-            "final_m": round(float(dp[-1]), 3),
-            "yaw_rmse_deg": round(float(np.degrees(np.sqrt(np.mean(dy**2)))), 2),
-        }
+        out["trajectory"] = trajectory_errors(traj, truth_traj)
+        if dead_reckoning is not None and len(dead_reckoning):
+            out["dead_reckoning"] = trajectory_errors(dead_reckoning, truth_traj)
+    return out
+
+
+def trajectory_errors(traj: np.ndarray, truth_traj: np.ndarray) -> dict[str, Any]:
+    """Position and heading errors of ``[t, x, y, yaw]`` rows against the truth (same frame).
+
+    Returns RMSE, maximum and final position error (m), heading RMSE (degrees), and per stop
+    (consecutive acquisitions whose true position moves by less than 1 cm) the mean position
+    error (m) and mean absolute heading error (degrees), when there are at most 200 stops.
+    """
+    idx = np.clip(np.searchsorted(truth_traj[:, 0], traj[:, 0] - 1e-9), 0, len(truth_traj) - 1)
+    tt = truth_traj[idx]
+    dp = np.linalg.norm(traj[:, 1:3] - tt[:, 1:3], axis=1)
+    dy = np.degrees((traj[:, 3] - tt[:, 3] + np.pi) % (2 * np.pi) - np.pi)
+    moved = np.r_[False, np.linalg.norm(np.diff(tt[:, 1:3], axis=0), axis=1) > 0.01]
+    stop = np.cumsum(moved)
+    n = np.bincount(stop)
+    out: dict[str, Any] = {
+        "rmse_m": round(float(np.sqrt(np.mean(dp**2))), 3),
+        "max_m": round(float(dp.max()), 3),
+        "final_m": round(float(dp[-1]), 3),
+        "yaw_rmse_deg": round(float(np.sqrt(np.mean(dy**2))), 2),
+    }
+    if n.size <= _MAX_STOPS:  # a robot that drives all the time has no stops to list
+        out["per_stop_m"] = np.round(np.bincount(stop, dp) / n, 3).tolist()
+        out["per_stop_yaw_deg"] = np.round(np.bincount(stop, np.abs(dy)) / n, 2).tolist()
     return out

@@ -90,7 +90,9 @@ def test_issue_8_a_young_landmark_does_not_weigh_the_particles(
     # no better than a new one, so the weights stay equal and nothing is resampled; without
     # it particle 0 takes most of the weight and the resampling copies it (its landmark,
     # 2 hits) over the others.
-    cfg = SlamConfig(n_particles=3, association="state", weight_hits=weight_hits, seed=1)
+    cfg = SlamConfig(
+        n_particles=3, association="state", weight_hits=weight_hits, weight_spread=0.0, seed=1
+    )
     slam = RbpfSlam(ANTENNAS, cfg)
     z = np.array([[4.0, 4.1]])
     slam.update(z)
@@ -103,3 +105,30 @@ def test_issue_8_a_young_landmark_does_not_weigh_the_particles(
     else:
         assert slam.resamples == 1
         assert np.sum(hits == 2) >= 2
+
+
+@pytest.mark.parametrize(("weight_spread", "weighs"), [(0.3, False), (0.0, True)])
+def test_a_landmark_seen_from_one_place_only_does_not_weigh(
+    weight_spread: float, weighs: bool
+) -> None:
+    # Two particles; only particle 0 keeps a landmark with many echoes, all from the
+    # starting point (a stop-local ghost, say). With weight_spread the same pair again does
+    # not favour particle 0 until the robot has seen the landmark from 0.3 m away.
+    cfg = SlamConfig(n_particles=2, association="state", weight_spread=weight_spread, seed=1)
+    slam = RbpfSlam(ANTENNAS, cfg)
+    z = np.array([[4.0, 4.1]])
+    for _ in range(6):
+        slam.update(z)
+    slam.lm.active[1:] = False
+    slam.logw[:] = 0.0
+    slam.update(z)
+    assert (np.ptp(slam.logw) > 1.0) == weighs
+
+
+def test_likelihood_power_zero_ignores_the_echoes() -> None:
+    cfg = SlamConfig(n_particles=5, association="state", likelihood_power=0.0, seed=2)
+    slam = RbpfSlam(ANTENNAS, cfg)
+    for r in (4.0, 4.02, 3.98, 4.01, 4.0, 4.03):
+        slam.predict(1.0, (0.0, 0.0, 0.02))
+        slam.update(np.array([[r, r + 0.1]]))
+    assert np.ptp(slam.logw) < 1e-12 and slam.resamples == 0

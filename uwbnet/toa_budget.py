@@ -143,6 +143,7 @@ def budget(
         },
         "range_bound_mm": {
             "single_path_rms": rms(sb),
+            "single_path_p50": _pct(sb, 50),
             "multipath_rms": rms(mb[np.isfinite(mb)]),
             "multipath_infinite": int(np.count_nonzero(~np.isfinite(mb))),
             "multipath_p50": _pct(mb, 50),

@@ -167,10 +167,10 @@ class MultipathMlToaRefiner:
             return np.abs(coef)
 
         def fit(start: list[float]) -> tuple[FloatArray, float] | None:
-            sol = least_squares(
-                residual, np.asarray(start), bounds=(lo - 1.0, hi), x_scale=sig, xtol=1e-8
-            )
+            sol = least_squares(residual, np.asarray(start), method="lm", xtol=1e-6)
             taus = np.sort(sol.x)
+            if taus[0] < lo - 1.0 or taus[-1] > hi:
+                return None  # a path fled the window: not a fit of these samples
             if taus.size > 1 and np.min(np.diff(taus)) < 0.3 * sig:
                 return None  # two paths on top of each other: ill-conditioned, not a path
             return taus, float(np.sum(sol.fun**2))

@@ -44,7 +44,7 @@ def test_foyer_recording_ranges_the_tx_rx_coupling(foyer: Path, tmp_path: Path) 
     assert not Path(str(out) + ".partial").exists()
 
 
-@pytest.mark.parametrize("method", ["threshold", "adaptive", "peak", "ml"])
+@pytest.mark.parametrize("method", ["threshold", "adaptive", "peak"])
 def test_every_method_runs(foyer: Path, tmp_path: Path, method: str) -> None:
     # in process: the command line itself is covered above
     out = tmp_path / "r.jsonl"

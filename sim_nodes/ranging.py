@@ -80,12 +80,21 @@ class LinkState:
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class RangingRound:
-    """One simulated ranging round of a link: what the radios measured and the truth."""
+    """One simulated ranging round of a link: what the radios measured and the truth.
+
+    ``delays`` (ns, the direct path first) and ``amplitudes`` are the round's paths, and
+    ``lead`` (s) the true first-path delay after each window's start (the same in every
+    reception of the round), for error budgets and multipath bounds
+    (:func:`fusion_center.localization.crlb.multipath_delay_bound`).
+    """
 
     exchange: RoundTrip
     link: LinkState
     ebn0_db: float
     beta: float
+    delays: FloatArray | None = None
+    amplitudes: npt.NDArray | None = None
+    lead: float = float("nan")
 
 
 class RangingSimulator:
@@ -280,4 +289,7 @@ class RangingSimulator:
             link=link,
             ebn0_db=10.0 * math.log10(max(ebn0, 1e-30)),
             beta=self._beta,
+            delays=delays,
+            amplitudes=amps,
+            lead=lead,
         )

@@ -431,7 +431,7 @@ class RangingModel(_Model):
     clock_ppm: float = Field(20.0, ge=0.0, le=1000.0)
     environment: Literal["office", "residential"] = "residential"
     coherence_time: float = Field(1.0, gt=0.0)
-    method: Literal["mpd", "threshold", "adaptive", "peak"] = "adaptive"
+    method: Literal["mpd", "threshold", "adaptive", "peak", "ml"] = "adaptive"
 
 
 class CircleScanModel(_Model):

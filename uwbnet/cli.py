@@ -712,7 +712,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output ranges JSONL")
     r.add_argument(
         "--method",
-        choices=("mpd", "threshold", "adaptive", "peak"),
+        choices=("mpd", "threshold", "adaptive", "peak", "ml"),
         default="adaptive",
         help="ToA estimator: maximum probability of detection (eq. 4-5), fixed or adaptive "
         "threshold, strongest peak",

@@ -5,7 +5,13 @@ Kalman filters (:mod:`.kalman`), Cramér-Rao bounds (:mod:`.crlb`) and the per-n
 localizer that combines them (:mod:`.mobile`).
 """
 
-from .crlb import position_crlb, position_error_bound, range_crlb, rms_bandwidth
+from .crlb import (
+    multipath_delay_bound,
+    position_crlb,
+    position_error_bound,
+    range_crlb,
+    rms_bandwidth,
+)
 from .estimators import (
     LOCATORS,
     ApproximateMlLocator,
@@ -32,6 +38,7 @@ __all__ = [
     "RangeKalmanTracker",
     "RangingLocalizer",
     "TaylorSeriesLocator",
+    "multipath_delay_bound",
     "position_crlb",
     "position_error_bound",
     "range_crlb",

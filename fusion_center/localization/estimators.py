@@ -213,6 +213,18 @@ class TaylorSeriesLocator(Locator):
         # is the local one, and the fix is flagged so that only a tracker with that prior uses it
         return PositionFix(position=x, cov=cov, ok=not problem, reason=problem, residual_rms=rms)
 
+    def from_start(
+        self, anchors: FloatArray, ranges: FloatArray, std: FloatArray, start: FloatArray
+    ) -> tuple[FloatArray, FloatArray, float] | None:
+        """Gauss-Newton from ``start`` alone: the local solution (2,), its covariance (2, 2)
+        and its weighted cost :math:`\\sum_i ((d_i - r_i) / \\sigma_i)^2`, or None."""
+        return self._iterate(
+            np.asarray(anchors, float),
+            np.asarray(ranges, float),
+            np.asarray(std, float),
+            np.asarray(start, float),
+        )
+
     def _iterate(
         self, a: FloatArray, r: FloatArray, s: FloatArray, x0: FloatArray
     ) -> tuple[FloatArray, FloatArray, float] | None:

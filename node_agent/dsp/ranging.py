@@ -18,8 +18,9 @@ from scipy.signal import hilbert
 
 from .band_filter import BandMatchedFilter
 from .geometry import SPEED_OF_LIGHT, RadarParams
+from .multipath_toa import MultipathMlToaRefiner
 from .nlos import DEFAULT_CLASSIFIER, FEATURES, LogisticNlosClassifier, channel_features
-from .toa import AdaptiveThresholdToaEstimator, envelope, make_toa_estimator
+from .toa import AdaptiveThresholdToaEstimator, envelope, make_toa_estimator, noise_sigma
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -61,7 +62,9 @@ class FirstPathRanger:
     radar : RadarParams
         Sampling, window start ``t0``, band and carrier (``node_info.radar``).
     method : str
-        ToA estimator: ``mpd``, ``threshold``, ``adaptive`` or ``peak``.
+        ToA estimator: ``mpd``, ``threshold``, ``adaptive``, ``peak``, or ``ml``: the
+        adaptive threshold's first path refined by the joint fit of the pulse over a few
+        overlapping paths (:class:`~node_agent.dsp.multipath_toa.MultipathMlToaRefiner`).
     classifier : LogisticNlosClassifier
         LOS/NLOS rule; the simulator-trained default when omitted.
     min_filter_gain_db : float or None
@@ -77,8 +80,9 @@ class FirstPathRanger:
     ) -> None:
         self.radar = radar
         self.method = method
-        self._toa = make_toa_estimator(method, radar)
         self._shape_toa = AdaptiveThresholdToaEstimator(radar)
+        self._refiner = MultipathMlToaRefiner(radar) if method == "ml" else None
+        self._toa = self._shape_toa if method == "ml" else make_toa_estimator(method, radar)
         self.classifier = classifier if classifier is not None else DEFAULT_CLASSIFIER
         self._min_gain = min_filter_gain_db
         self._filters: dict[bool, BandMatchedFilter | None] = {}
@@ -115,9 +119,12 @@ class FirstPathRanger:
         env = envelope(y)
         matched = band is not None
         est = self._toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
+        toa = est.toa
+        if self._refiner is not None:
+            toa = self._refine(h, est.index, is_complex) / self.radar.fs
         shape_est = (
             est
-            if self.method == "adaptive"
+            if self.method in ("adaptive", "ml")
             else self._shape_toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
         )
         # the shape features need the envelope, not a real signal's rectified oscillation:
@@ -133,11 +140,23 @@ class FirstPathRanger:
             )
             p_nlos = self.classifier.nlos_probability(feats)
         return RangingResult(
-            range=SPEED_OF_LIGHT * (self.radar.t0 + est.toa),
-            toa=est.toa,
+            range=SPEED_OF_LIGHT * (self.radar.t0 + toa),
+            toa=toa,
             los=p_nlos < 0.5,
             nlos_probability=p_nlos,
             snr_db=est.snr_db,
             quality=est.quality,
             features=feats,
         )
+
+    def _refine(self, h: npt.NDArray, index: FloatArray, is_complex: bool) -> FloatArray:
+        """The multipath fit on the unfiltered samples (white noise), with their own noise
+        sigma and the adaptive threshold's detection level."""
+        assert self._refiner is not None
+        est = self._shape_toa
+        env = envelope(h)
+        guard = max(1, int(np.ceil(4.0 * self.radar.fs / self.radar.bandwidth)))
+        sigma = noise_sigma(env, np.argmax(env, axis=1) - guard, complex_input=is_complex)
+        n = min(est._back, h.shape[1])
+        factor = est.threshold_factor(n, complex_input=is_complex)
+        return self._refiner.refine(h, index, sigma, factor * sigma, est._floor)

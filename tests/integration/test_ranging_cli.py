@@ -138,6 +138,14 @@ def test_complex_baseband_recording(tmp_path: Path) -> None:
     assert np.median(np.abs(r2 - NLOS_RANGE)) < 0.05
     assert np.mean([x["los"] for x in by_rx["rx1"]]) >= 0.9
     assert np.mean([not x["los"] for x in by_rx["rx2"]]) >= 0.9
+    # the multipath fit on the same complex samples: the same first paths
+    ml = tmp_path / "ml.jsonl"
+    range_recording(rec, ml, method="ml")
+    got = [json.loads(x) for x in ml.read_text().splitlines()]
+    m1 = np.array([x["range"] for x in got if x["rx"] == "rx1"])
+    m2 = np.array([x["range"] for x in got if x["rx"] == "rx2"])
+    assert np.median(np.abs(m1 - LOS_RANGE)) < 0.05
+    assert np.median(np.abs(m2 - NLOS_RANGE)) < 0.05
 
 
 def test_bad_messages_are_counted_not_fatal(tmp_path: Path) -> None:

@@ -113,6 +113,13 @@ class GmPhdConfig:
         A new track confirmed within ``reid_time`` (s) of a confirmed track's loss and within
         ``reid_radius + reid_speed * dt`` (m, m/s) of where it was last reported continues its
         id (see :meth:`GmPhdTracker._reidentify`).
+    label_miss_time, max_label_miss : float
+        Time constant (s) of the miss rate each established label learns, and its cap; 0 turns
+        it off (see :meth:`GmPhdTracker._label_frame_miss`). ``frame_miss`` is one rate for
+        all people, and the people who are seen well set it; one person may be missed in half
+        the frames for seconds (a person just beyond a sensor's blind zone near a wall, seen
+        obliquely by the others) while the rest are seen in nearly every frame, and with the
+        shared rate each empty frame costs such a track nine tenths of its weight.
     coast_time : float
         A confirmed track whose weight fell below ``keep_threshold`` is still reported, at its
         predicted state, for this long (s): people near walls or shadowed may go unseen by
@@ -190,6 +197,8 @@ class GmPhdConfig:
     confirm_steps: int = 3
     confirm_time: float = 0.5
     learn_frame_miss: bool = True
+    label_miss_time: float = 1.0
+    max_label_miss: float = 0.7
     coast_time: float = 0.25
     reid_time: float = 2.0
     reid_radius: float = 0.5
@@ -527,6 +536,9 @@ class GmPhdTracker(Tracker):
         self._strong_time: dict[int, float] = {}
         #: Learned probability that no sensor detects an established track in a frame.
         self.frame_miss = 1.0 - self.config.max_detection_probability
+        #: Learned probability, per established label, that no sensor detects it in a frame.
+        self.label_miss: dict[int, float] = {}
+        self._t_frame: float | None = None
         self._t_extract: float | None = None
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
@@ -774,6 +786,8 @@ class GmPhdTracker(Tracker):
                 unseen = ~near[seen_by[heavy]].any(axis=1)
                 self.frame_miss += cfg.adapt_rate * (float(np.mean(unseen)) - self.frame_miss)
             miss = np.where(pd_js.any(axis=1), np.maximum(miss, self.frame_miss), miss)
+            if cfg.label_miss_time > 0.0:
+                miss = self._label_frame_miss(t, mix, heavy, near, pd_js, miss)
         # Each sensor's false estimates spread over its own view: the intensities add up; a
         # fused measurement of several sensors is clutter only if their false alarms coincide.
         kappa0 = sum(self._clutter_intensity(scan) for scan in scans)
@@ -904,6 +918,73 @@ class GmPhdTracker(Tracker):
             & (occ_label[:, None] != mix.label[None, :])[None]
         )
         return shadows.any(axis=1).T
+
+    def _label_frame_miss(
+        self,
+        t: float,
+        mix: _Mixture,
+        heavy: npt.NDArray[np.bool_],
+        near: npt.NDArray[np.bool_],
+        pd_js: FloatArray,
+        miss: FloatArray,
+    ) -> FloatArray:
+        """The frame's miss probability of each component, raised to its label's learned rate.
+
+        Beyond the chapter (see ``label_miss_time``): each established label (a component
+        above 0.5 in some sensor's view) learns the rate of frames in which no estimate of any
+        sensor fell within ``cluster_distance`` of it, an exponential average with time
+        constant ``label_miss_time``, starting from the shared ``frame_miss``. The probability
+        that no sensor detects a component is never below its label's rate (capped at
+        ``max_label_miss``).
+
+        Parameters
+        ----------
+        t : float
+            Frame time, s.
+        mix : _Mixture
+            The predicted mixture (J components).
+        heavy : ndarray, bool, shape (J,)
+            Components above weight 0.5.
+        near : ndarray, bool, shape (H, K)
+            For each heavy component, whether each measurement is within ``cluster_distance``.
+        pd_js : ndarray, shape (J, S)
+            Each sensor's detection probability of each component.
+        miss : ndarray, shape (J,)
+            The probability that no sensor detects each component, so far.
+
+        Returns
+        -------
+        ndarray, shape (J,)
+            ``miss`` raised to the label rates.
+        """
+        cfg = self.config
+        dt = 0.0 if self._t_frame is None else max(t - self._t_frame, 0.0)
+        self._t_frame = t
+        in_view = pd_js.any(axis=1)
+        rates = self.label_miss
+        seen = heavy & in_view
+        if dt > 0.0 and seen.any():
+            gain = -math.expm1(-dt / cfg.label_miss_time)
+            hit = near[seen[heavy]].any(axis=1)
+            # one observation per label: hit if any of its heavy components was hit
+            labels, inverse = np.unique(mix.label[seen], return_inverse=True)
+            label_hit = np.zeros(labels.size, dtype=bool)
+            np.logical_or.at(label_hit, inverse, hit)
+            for lb, h in zip(labels.tolist(), label_hit.tolist(), strict=True):
+                old = rates.get(lb, self.frame_miss)
+                rates[lb] = old + gain * ((0.0 if h else 1.0) - old)
+            if len(rates) > 2 * labels.size + 64:  # forget labels that left the mixture
+                live = set(mix.label.tolist())
+                self.label_miss = rates = {k: v for k, v in rates.items() if k in live}
+        if not rates:
+            return miss
+        keys = np.fromiter(rates.keys(), dtype=np.int64, count=len(rates))
+        vals = np.fromiter(rates.values(), dtype=np.float64, count=len(rates))
+        order = np.argsort(keys)
+        keys, vals = keys[order], np.minimum(vals[order], cfg.max_label_miss)
+        idx = np.minimum(np.searchsorted(keys, mix.label), keys.size - 1)
+        own = np.where(keys[idx] == mix.label, vals[idx], 0.0)
+        return np.where(in_view, np.maximum(miss, own), miss)
 
     def _occluded(self, scan: SensorScan, mix: _Mixture) -> npt.NDArray[np.bool_]:
         """Components shadowed, for ``scan``'s sensor, by a heavier component of another label

@@ -224,9 +224,6 @@ def bench_channel(seed: int = 0) -> dict[str, Any]:
 def bench_scale(seed: int = 1) -> dict[str, Any]:
     """CPU per acquisition of simulation, node DSP and fusion (one center / 4 cells) in
     generated buildings of 12, 48 and 100 nodes (``uwbnet.bench_scale``)."""
-    # As in the processes of ``uwbnet scale``: OpenBLAS threads only add contention for the
-    # simulator's small matrix products (effective only before numpy is first imported).
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from uwbnet.bench_scale import run
 
     return {"bench": "scale", **run(seed=seed), **_machine()}

@@ -323,6 +323,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    # Per-core figures of code that runs in the live processes, so with their one BLAS thread
+    # (see above cmd_demo); ``bench scale`` and ``bench slam`` start their own processes.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from uwbnet.bench import BENCHES
 
     result = BENCHES[args.name](seed=args.seed)

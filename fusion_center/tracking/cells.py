@@ -6,7 +6,8 @@ neighbouring workers, each with its own labels. :class:`HandoverMerger` (the gat
 makes one track list with network-wide IDs:
 
 * a cell *owns* the tracks of its worker whose position lies inside the cell; only owned tracks
-  are output, so a person in the overlap appears once;
+  are output, so a person in the overlap appears once (a person on a border whose two
+  workers' estimates lie crosswise, each in the other's cell, counts as owned by both);
 * while a person is in the overlap, the neighbour's (not owned) track is *linked* to the owned
   track nearest to it within ``link_gate``: it takes the same global ID;
 * when the person crosses the border, ownership passes to the neighbour, whose linked track
@@ -161,7 +162,17 @@ class HandoverMerger:
         for key in keys:
             self._seen[key] = t
         d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-        same = self._same_person(np.array([k for k, _ in rows]), d)
+        worker = np.array([k for k, _ in rows], dtype=np.int64)
+        same = self._same_person(worker, d)
+        # A person on a border whose two estimates lie crosswise (each in the other worker's
+        # cell) is owned by nobody: both take part as owned, and the merge outputs one.
+        owned |= (
+            same
+            & ~owned[:, None]
+            & ~owned[None, :]
+            & (owner[:, None] == worker[None, :])
+            & (owner[None, :] == worker[:, None])
+        ).any(axis=1)
         holder = self._check_links(keys, owned, xy, same, t)
         # 1. Owned tracks without a global ID: the ID of another worker's track of the same
         #    person (within the gate: the estimates straddle the border), else that of a

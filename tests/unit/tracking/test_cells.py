@@ -92,3 +92,14 @@ def test_two_people_passing_at_a_border_stay_two_when_a_worker_swaps_its_labels(
         for tr in merged.tracks:
             seen["A" if abs(tr.y - ya) < 0.2 else "B"].add(tr.id)
     assert len(seen["A"]) == 1 and len(seen["B"]) == 1 and seen["A"] != seen["B"]
+
+
+def test_a_person_on_a_border_with_crosswise_estimates_is_output_once():
+    """Each worker's estimate of a person standing on the border lies in the other's cell:
+    neither owns it, yet the person is there (before the fix the output was empty)."""
+    merger = HandoverMerger(StripCells((15.0,)), link_gate=1.0)
+    for k in range(50):
+        t = 0.02 * k
+        merger.update(0, _out(t, [(1, 15.03, 4.0), (3, 5.0, 2.0)], vx=0.0))
+        merged = merger.update(1, _out(t, [(2, 14.98, 4.02)], vx=0.0))
+        assert sorted(round(tr.x) for tr in merged.tracks) == [5, 15], merged.tracks

@@ -6,13 +6,19 @@ neighbouring workers, each with its own labels. :class:`HandoverMerger` (the gat
 makes one track list with network-wide IDs:
 
 * a cell *owns* the tracks of its worker whose position lies inside the cell; only owned tracks
-  are output, so a person in the overlap appears once;
+  are output, so a person in the overlap appears once (a person on a border whose two
+  workers' estimates lie crosswise, each in the other's cell, counts as owned by both);
 * while a person is in the overlap, the neighbour's (not owned) track is *linked* to the owned
   track nearest to it within ``link_gate``: it takes the same global ID;
 * when the person crosses the border, ownership passes to the neighbour, whose linked track
   already carries the global ID: the ID survives the hand-over;
 * a newly owned track that is not linked inherits the global ID of a track that disappeared
-  within ``lost_time`` less than ``link_gate`` away (a late hand-over); else it gets a new ID.
+  within ``lost_time`` less than ``link_gate`` away (a late hand-over); else it gets a new ID;
+* links are checked at every update: when a worker swaps its labels (two people passing each
+  other in the overlap), two owned tracks far apart can carry the same global ID. The one
+  nearest to where that ID's last output predicts it (constant velocity) keeps it; the others
+  and the neighbours' tracks far from it lose their links and are linked afresh, so nobody
+  vanishes from the output behind another person's ID.
 
 This is track-to-track association by nearest neighbour with gating (Bar-Shalom, Willett &
 Tian 2011, ch. 9), the simplest scheme that keeps labels across a partition; the CoLOR chapter
@@ -89,6 +95,12 @@ class _Global:
     x: float
     y: float
     last_t: float
+    vx: float = 0.0
+    vy: float = 0.0
+
+    def predict(self, t: float) -> tuple[float, float]:
+        """Position (m) at ``t`` (s), constant velocity from the last output."""
+        return self.x + self.vx * (t - self.last_t), self.y + self.vy * (t - self.last_t)
 
 
 class HandoverMerger:
@@ -150,6 +162,18 @@ class HandoverMerger:
         for key in keys:
             self._seen[key] = t
         d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        worker = np.array([k for k, _ in rows], dtype=np.int64)
+        same = self._same_person(worker, d)
+        # A person on a border whose two estimates lie crosswise (each in the other worker's
+        # cell) is owned by nobody: both take part as owned, and the merge outputs one.
+        owned |= (
+            same
+            & ~owned[:, None]
+            & ~owned[None, :]
+            & (owner[:, None] == worker[None, :])
+            & (owner[None, :] == worker[:, None])
+        ).any(axis=1)
+        holder = self._check_links(keys, owned, xy, same, t)
         # 1. Owned tracks without a global ID: the ID of another worker's track of the same
         #    person (within the gate: the estimates straddle the border), else that of a
         #    global track lost nearby moments ago (a late hand-over), else a new one.
@@ -159,10 +183,12 @@ class HandoverMerger:
         for i in np.flatnonzero(owned):
             if keys[i] in self._map:
                 continue
+            # A neighbour's link counts only if its ID is free or held by this same person.
             near = [
                 j
-                for j in range(len(rows))
-                if rows[j][0] != rows[i][0] and keys[j] in self._map and d[i, j] < self.link_gate
+                for j in np.flatnonzero(same[i])
+                if keys[j] in self._map
+                and (holder.get(self._map[keys[j]]) is None or same[i, holder[self._map[keys[j]]]])
             ]
             if near:
                 gid: int | None = self._map[keys[min(near, key=lambda j: d[i, j])]]
@@ -174,29 +200,26 @@ class HandoverMerger:
             else:
                 self.handovers += 1
             self._map[keys[i]] = gid
+            holder.setdefault(gid, int(i))
             current.add(gid)
         # 2. Link the not-owned tracks of other workers to the owned track nearest them.
         for j in np.flatnonzero(~owned):
             if keys[j] in self._map:
                 continue
-            cand = [
-                i
-                for i in np.flatnonzero(owned)
-                if rows[i][0] != rows[j][0] and d[i, j] < self.link_gate
-            ]
+            cand = np.flatnonzero(owned & same[:, j]).tolist()
             if cand:
                 i = min(cand, key=lambda i: d[i, j])
                 self._map[keys[j]] = self._map[keys[i]]
         # 3. Output the owned tracks; one per global ID (two workers may both own the same
-        #    person for a moment when their estimates straddle the border).
+        #    person for a moment when their estimates straddle the border); the holder first.
         out: dict[int, TrackEstimate] = {}
-        for i in np.flatnonzero(owned):
+        for i in sorted(np.flatnonzero(owned), key=lambda i: holder.get(self._map[keys[i]]) != i):
             gid = self._map[keys[i]]
             tr = rows[i][1]
             if gid in out:
                 continue
             out[gid] = dataclasses.replace(tr, id=gid)
-            self._globals[gid] = _Global(gid, tr.x, tr.y, t)
+            self._globals[gid] = _Global(gid, tr.x, tr.y, t, tr.vx, tr.vy)
         self._forget(t)
         tracks = tuple(out[g] for g in sorted(out))
         # The workers' own n_estimate count the overlaps twice: the merged estimate is the
@@ -204,6 +227,56 @@ class HandoverMerger:
         return TrackerOutput(
             t=t, tracks=tracks, n_estimate=float(len(tracks)), acquired=output.acquired
         )
+
+    def _check_links(
+        self,
+        keys: list[tuple[int, int]],
+        owned: npt.NDArray[np.bool_],
+        xy: npt.NDArray[np.float64],
+        same: npt.NDArray[np.bool_],
+        t: float,
+    ) -> dict[int, int]:
+        """Drop the links that contradict the owned tracks; return each held global ID's
+        holder (row index of the owned track that keeps it).
+
+        Of the owned tracks sharing a global ID, the one nearest to the ID's predicted position
+        keeps it; every other track with that ID that is not the holder's person (``same``) is
+        unlinked (it belongs to somebody else: a worker swapped labels).
+        """
+        groups: dict[int, list[int]] = {}
+        for i, key in enumerate(keys):
+            if key in self._map:
+                groups.setdefault(self._map[key], []).append(i)
+        holder: dict[int, int] = {}
+        for gid, members in groups.items():
+            own = [i for i in members if owned[i]]
+            if not own:
+                continue
+            g = self._globals.get(gid)
+            if g is None:
+                h = own[0]
+            else:
+                px, py = g.predict(t)
+                h = min(own, key=lambda i: math.hypot(xy[i, 0] - px, xy[i, 1] - py))
+            holder[gid] = h
+            for i in members:
+                if i != h and not same[i, h]:
+                    self._map.pop(keys[i], None)  # a worker may repeat a label
+        return holder
+
+    def _same_person(
+        self, worker: npt.NDArray[np.int64], d: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.bool_]:
+        """Which pairs of rows (tracks of ``worker``, distances ``d`` in m) may be one person:
+        tracks of two different workers, closer than ``link_gate``, each the other worker's
+        track nearest to the other (mutual nearest neighbours; one worker's two tracks are two
+        people, however close)."""
+        nearest_d = np.empty_like(d)
+        for w in np.unique(worker):
+            mine = worker == w
+            nearest_d[mine] = d[mine].min(axis=0)
+        nearest = d <= nearest_d
+        return (worker[:, None] != worker[None, :]) & (d < self.link_gate) & nearest & nearest.T
 
     def _take_over(self, p: np.ndarray, t: float, taken: set[int]) -> int | None:
         best, best_d = None, self.link_gate

@@ -31,6 +31,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import squareform
 
+from . import kernels
 from .base import (
     FloatArray,
     SensorScan,
@@ -482,6 +483,12 @@ def fuse_estimates(
     return zf, Rf + noise_floor**2 * np.eye(2), labels
 
 
+def _writable(a: FloatArray) -> FloatArray:
+    """``a`` as a writable float64 array (the compiled kernels take no read-only views)."""
+    a = np.asarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
+
+
 def _cap_label_weight(w: FloatArray, label: IntArray, cap: float) -> FloatArray:
     """Scale each label's components so that their summed weight is at most ``cap``."""
     _, inv = np.unique(label, return_inverse=True)
@@ -522,6 +529,9 @@ class GmPhdTracker(Tracker):
         #: ``None``: sensors see through walls. Positions with a factor below 1 are left
         #: out of the learned detection profiles.
         self.sight: Callable[[SensorScan, FloatArray], FloatArray] | None = None
+        #: Correct, prune and merge with the compiled kernels (``tracking.kernels``); False:
+        #: with the numpy reference code, which the kernels match up to rounding.
+        self.compiled = True
         self.reset()
 
     def _sight(self, scan: SensorScan, xy: FloatArray) -> FloatArray:
@@ -656,6 +666,11 @@ class GmPhdTracker(Tracker):
             if act.w.size > 1 and cfg.occluded_factor < 1.0:
                 pd = pd * np.where(self._occluded(scan, act), cfg.occluded_factor, 1.0)
 
+        if self.compiled:
+            kappa_k = frame[2] if frame is not None else self._clutter_intensity(scan)
+            return self._correct_compiled(
+                scan, act, rest, z, R, pd, kappa_k, frame, visible[active]
+            )
         explained = np.zeros(n_meas)
         claimed = np.zeros(n_meas, dtype=bool)
         if act.w.size and n_meas:
@@ -720,6 +735,39 @@ class GmPhdTracker(Tracker):
             self._mix = _Mixture.concat((rest, act)) if rest.w.size else act
         else:
             self._mix = rest
+        return self._births_from(scan, explained, claimed)
+
+    def _correct_compiled(
+        self,
+        scan: SensorScan,
+        act: _Mixture,
+        rest: _Mixture,
+        z: FloatArray,
+        R: FloatArray,
+        pd: FloatArray,
+        kappa: FloatArray | float,
+        frame: tuple[FloatArray, FloatArray, FloatArray] | None,
+        visible: npt.NDArray[np.bool_],
+    ) -> _Mixture:
+        """The end of :meth:`_update` (correct, prune, merge, cap; births) in one call of
+        :func:`~fusion_center.tracking.kernels.gmphd_correct`."""
+        cfg = self.config
+        n_act, n_meas = act.w.size, z.shape[0]
+        if frame is None:
+            detect = np.empty((n_act, n_meas))
+            detect[:] = pd[:, None]
+        else:
+            detect = frame[0]
+        w, m, P, label, explained, claimed, gated = kernels.gmphd_correct(
+            act.w, act.m, act.P, act.label, _writable(detect), 1.0 - pd, _writable(z),
+            _writable(R), np.broadcast_to(kappa, (n_meas,)).astype(np.float64),
+            self._confirmed_arr, cfg.gate, cfg.prune_threshold, cfg.merge_threshold,
+            cfg.max_label_weight,
+        )  # fmt: skip
+        if cfg.adapt_detection and frame is None and n_act and n_meas:
+            self._learn_detection(scan, act, visible, gated)
+        done = _Mixture(w, m, P, label)
+        self._mix = _Mixture.concat((rest, done)) if rest.w.size else done
         return self._births_from(scan, explained, claimed)
 
     def _frame_update(self, t: float, scans: Sequence[SensorScan]) -> _Mixture:
@@ -1135,7 +1183,20 @@ class GmPhdTracker(Tracker):
             self._births = self._merge_births(
                 births[0] if len(births) == 1 else _Mixture.concat(births)
             )
-        if len(scans) > 1 and self._mix.w.size > 1:
+        if len(scans) > 1 and self._mix.w.size > 1 and self.compiled:
+            mix = self._mix
+            self._mix = _Mixture(
+                *kernels.merge_mixture(
+                    mix.w,
+                    mix.m,
+                    mix.P,
+                    mix.label,
+                    self._confirmed_arr,
+                    self.config.merge_threshold,
+                    math.inf,
+                )
+            )
+        elif len(scans) > 1 and self._mix.w.size > 1:
             # Components of one target seen by different sensors were merged per sensor only.
             mix = self._mix
             self._mix = _Mixture(

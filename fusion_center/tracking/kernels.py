@@ -1,0 +1,382 @@
+"""Compiled (numba) kernels of the labelled GM-PHD tracker's per-scan hot path.
+
+The fusion center's GM-PHD (:mod:`fusion_center.tracking.gmphd`) corrects a few dozen
+Gaussian components with a handful of measurements per scan: every numpy call there costs
+more than its arithmetic. These kernels do the correction (gating, weights, Kalman update),
+pruning, merging and the per-label weight cap in one call each. They are pure functions of
+arrays (no I/O, no clocks), compiled on import for one explicit signature with
+``cache=True``; without a writable cache directory they are compiled in memory by every
+process instead (slower to start, the same results).
+
+They perform the same floating-point operations in the same order as the numpy reference
+(:func:`fusion_center.tracking.gmphd.merge_components` and the numpy branch of
+``GmPhdTracker._update``), so results differ at most by the rounding of ``exp`` and of
+numpy's pairwise sums. ``tests/unit/tracking/test_kernels.py`` compares them.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numba
+import numpy as np
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _njit(signature):
+    """``numba.njit(signature, cache=True)``, compiled (or loaded from numba's cache) at
+    import; compiled in memory when numba has no writable cache directory."""
+
+    def decorate(func):
+        try:
+            return numba.njit(signature, cache=True)(func)
+        except RuntimeError as err:  # "cannot cache function ...: no locator available"
+            warnings.warn(f"numba cache unavailable, compiling in memory: {err}", stacklevel=2)
+            return numba.njit(signature)(func)
+
+    return decorate
+
+
+@_njit("void(float64[:], int64[:], float64)")
+def _cap(w, label, cap):  # pragma: no cover
+    """Scale each label's weights in place so that they sum to at most ``cap``."""
+    n = w.shape[0]
+    if n == 0 or math.isinf(cap):
+        return
+    order = np.argsort(label, kind="mergesort")
+    start = 0
+    while start < n:
+        stop = start
+        total = 0.0
+        while stop < n and label[order[stop]] == label[order[start]]:
+            total += w[order[stop]]
+            stop += 1
+        scale = min(1.0, cap / max(total, 1e-300))
+        for g in range(start, stop):
+            w[order[g]] *= scale
+        start = stop
+
+
+_MIXTURE = "Tuple((float64[:], float64[:, :], float64[:, :, :], int64[:]))"
+
+
+@_njit(
+    _MIXTURE + "(float64[:], float64[:, :], float64[:, :, :], int64[:], int64[:], float64, float64)"
+)
+def merge_mixture(w, m, P, label, confirmed, threshold, cap):  # pragma: no cover
+    """Greedy moment-matching merge (Vo & Ma 2006, Table II) and per-label weight cap.
+
+    :func:`fusion_center.tracking.gmphd.merge_components` compiled: the heaviest remaining
+    component ``l`` absorbs every remaining ``i`` within the squared Mahalanobis distance
+    ``threshold`` under ``P_l``,
+
+    .. math::
+
+        (m_i - m_l)^T P_l^{-1} (m_i - m_l) \\le U,\\quad
+        \\tilde w = \\sum_i w_i,\\quad
+        \\tilde m = \\frac{1}{\\tilde w}\\sum_i w_i m_i,\\quad
+        \\tilde P = \\frac{1}{\\tilde w}\\sum_i w_i \\left(P_i + (\\tilde m - m_i)
+        (\\tilde m - m_i)^T\\right),
+
+    never joining two components of different confirmed labels; a merged component keeps the
+    label of its heaviest confirmed member, else of ``l``. Then each label's components are
+    scaled so that their summed weight is at most ``cap`` (``inf``: no cap).
+
+    Parameters
+    ----------
+    w : ndarray, float64, shape (J,)
+    m : ndarray, float64, shape (J, 4)
+        Means ``[x, vx, y, vy]``, m and m/s.
+    P : ndarray, float64, shape (J, 4, 4)
+    label : ndarray, int64, shape (J,)
+    confirmed : ndarray, int64, shape (C,)
+        Confirmed labels, sorted ascending (their components are "protected").
+    threshold : float
+        ``U``.
+    cap : float
+        Largest summed weight of one label.
+
+    Returns
+    -------
+    w, m, P, label
+        The merged mixture, sorted by decreasing weight (stable) before the cap.
+    """
+    n = w.shape[0]
+    order = np.argsort(-w, kind="mergesort")
+    ws = np.empty(n)
+    ms = np.empty((n, 4))
+    Ps = np.empty((n, 4, 4))
+    ls = np.empty(n, dtype=np.int64)
+    prot = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        o = order[i]
+        ws[i] = w[o]
+        ls[i] = label[o]
+        for r in range(4):
+            ms[i, r] = m[o, r]
+            for c in range(4):
+                Ps[i, r, c] = P[o, r, c]
+        if confirmed.shape[0]:
+            k = np.searchsorted(confirmed, ls[i])
+            prot[i] = k < confirmed.shape[0] and confirmed[k] == ls[i]
+    if n <= 1:
+        _cap(ws, ls, cap)
+        return ws, ms, Ps, ls
+
+    # close[l, i]: i is within the gate of l under P_l (rows: leader candidates)
+    close = np.zeros((n, n), dtype=np.bool_)
+    for lead in range(n):
+        a, b, c = Ps[lead, 0, 0], Ps[lead, 0, 2], Ps[lead, 2, 2]
+        den = a * c - b * b
+        have_block = False
+        ia = ib = ic = b00 = b01 = b10 = b11 = s00 = s01 = s11 = s_det = 0.0
+        for i in range(n):
+            if i == lead:
+                continue
+            dx = ms[i, 0] - ms[lead, 0]
+            dy = ms[i, 2] - ms[lead, 2]
+            # position marginal first: a lower bound of the full distance
+            d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / den
+            if d2 > threshold:
+                continue
+            if not have_block:
+                # velocity part by the Schur complement (see gmphd._velocity_term)
+                inv_det = 1.0 / (a * c - b * b)
+                ia, ib, ic = c * inv_det, -b * inv_det, a * inv_det
+                b00, b01, b10, b11 = Ps[lead, 0, 1], Ps[lead, 0, 3], Ps[lead, 2, 1], Ps[lead, 2, 3]
+                g00, g01 = ia * b00 + ib * b10, ia * b01 + ib * b11
+                g10, g11 = ib * b00 + ic * b10, ib * b01 + ic * b11
+                s00 = Ps[lead, 1, 1] - (b00 * g00 + b10 * g10)
+                s01 = Ps[lead, 1, 3] - (b00 * g01 + b10 * g11)
+                s11 = Ps[lead, 3, 3] - (b01 * g01 + b11 * g11)
+                s_det = s00 * s11 - s01 * s01
+                have_block = True
+            dvx = ms[i, 1] - ms[lead, 1]
+            dvy = ms[i, 3] - ms[lead, 3]
+            ux = ia * dx + ib * dy
+            uy = ib * dx + ic * dy
+            r0 = dvx - (b00 * ux + b10 * uy)
+            r1 = dvy - (b01 * ux + b11 * uy)
+            d2 = d2 + (s11 * r0 * r0 - 2.0 * s01 * r0 * r1 + s00 * r1 * r1) / s_det
+            if d2 <= threshold and (ls[lead] == ls[i] or not (prot[lead] and prot[i])):
+                close[lead, i] = True
+
+    # components close to none are clusters of their own, numbered first
+    assign = np.empty(n, dtype=np.int64)
+    lonely = np.ones(n, dtype=np.bool_)
+    for lead in range(n):
+        for i in range(n):
+            if close[lead, i]:
+                lonely[lead] = False
+                lonely[i] = False
+    leaders = np.empty(n, dtype=np.int64)
+    n_clusters = 0
+    for i in range(n):
+        if lonely[i]:
+            assign[i] = n_clusters
+            leaders[n_clusters] = i
+            n_clusters += 1
+    remaining = ~lonely
+    for lead in range(n):  # the heaviest remaining leads: the arrays are weight-sorted
+        if not remaining[lead]:
+            continue
+        for i in range(lead, n):
+            if remaining[i] and (i == lead or close[lead, i]):
+                assign[i] = n_clusters
+                remaining[i] = False
+        leaders[n_clusters] = lead
+        n_clusters += 1
+    if n_clusters == n:
+        _cap(ws, ls, cap)
+        return ws, ms, Ps, ls
+
+    # moment matching, members in index (weight) order within each cluster
+    grouped = np.argsort(assign, kind="mergesort")
+    w_new = np.zeros(n_clusters)
+    m_new = np.zeros((n_clusters, 4))
+    P_new = np.zeros((n_clusters, 4, 4))
+    for g in range(n):
+        i = grouped[g]
+        w_new[assign[i]] += ws[i]
+    for g in range(n):
+        i = grouped[g]
+        k = assign[i]
+        for r in range(4):
+            m_new[k, r] += ws[i] * ms[i, r]
+    for k in range(n_clusters):
+        for r in range(4):
+            m_new[k, r] /= w_new[k]
+    d = np.empty(4)
+    for g in range(n):
+        i = grouped[g]
+        k = assign[i]
+        for r in range(4):
+            d[r] = ms[i, r] - m_new[k, r]
+        for r in range(4):
+            for c in range(4):
+                P_new[k, r, c] += ws[i] * (Ps[i, r, c] + d[r] * d[c])
+    for k in range(n_clusters):
+        for r in range(4):
+            for c in range(4):
+                P_new[k, r, c] /= w_new[k]
+    label_new = np.empty(n_clusters, dtype=np.int64)
+    have_prot = np.zeros(n_clusters, dtype=np.bool_)
+    for k in range(n_clusters):
+        label_new[k] = ls[leaders[k]]
+    for i in range(n):  # a confirmed track keeps its id: its heaviest member's label wins
+        if prot[i] and not have_prot[assign[i]]:
+            label_new[assign[i]] = ls[i]
+            have_prot[assign[i]] = True
+
+    by_weight = np.argsort(-w_new, kind="mergesort")
+    wo = np.empty(n_clusters)
+    mo = np.empty((n_clusters, 4))
+    Po = np.empty((n_clusters, 4, 4))
+    lo = np.empty(n_clusters, dtype=np.int64)
+    for i in range(n_clusters):
+        o = by_weight[i]
+        wo[i] = w_new[o]
+        lo[i] = label_new[o]
+        for r in range(4):
+            mo[i, r] = m_new[o, r]
+            for c in range(4):
+                Po[i, r, c] = P_new[o, r, c]
+    _cap(wo, lo, cap)
+    return wo, mo, Po, lo
+
+
+@_njit(
+    "Tuple((float64[:], float64[:, :], float64[:, :, :], int64[:], float64[:], boolean[:],"
+    " boolean[:, :]))"
+    "(float64[:], float64[:, :], float64[:, :, :], int64[:], float64[:, :], float64[:],"
+    " float64[:, :], float64[:, :, :], float64[:], int64[:], float64, float64, float64, float64)"
+)
+def gmphd_correct(
+    w, m, P, label, detect, keep, z, R, kappa, confirmed, gate, prune, threshold, cap
+):  # pragma: no cover
+    """GM-PHD update with one scan, then prune, merge and cap (Vo & Ma 2006, eqs. (20)-(21)).
+
+    For component ``j`` and measurement ``k`` (``H`` selects ``x, y``):
+
+    .. math::
+
+        S_{jk} = H P_j H^T + R_k,\\quad
+        q_{jk} = \\mathcal N(z_k; H m_j, S_{jk}),\\quad
+        w_{jk} = \\frac{w_j\\, D_{jk}\\, q_{jk}}{\\kappa_k + \\sum_i w_i\\, D_{ik}\\, q_{ik}}
+
+    for the pairs within the squared Mahalanobis ``gate`` (others 0), Kalman means and
+    covariances for the hypotheses above ``prune``, and the missed-detection components
+    ``keep_j w_j``. The result is pruned (``w > prune``) and reduced by :func:`merge_mixture`.
+
+    Parameters
+    ----------
+    w, m, P, label : ndarray, shapes (J,), (J, 4), (J, 4, 4), (J,)
+        The predicted mixture, state ``[x, vx, y, vy]``.
+    detect : ndarray, float64, shape (J, K)
+        ``D_jk``: the probability of the detection pattern behind measurement ``k`` for
+        component ``j`` (a sensor's ``p_D(m_j)`` for every ``k`` for a single scan).
+    keep : ndarray, float64, shape (J,)
+        Probability that component ``j`` goes undetected (``1 - p_D``).
+    z : ndarray, float64, shape (K, 2)
+        Measured positions, world x, y, m.
+    R : ndarray, float64, shape (K, 2, 2)
+        Their covariances, m².
+    kappa : ndarray, float64, shape (K,)
+        Clutter intensity at each measurement, 1/m².
+    confirmed : ndarray, int64, shape (C,)
+        Confirmed labels, sorted.
+    gate, prune, threshold, cap : float
+        Gate, pruning threshold, merge threshold ``U``, per-label weight cap.
+
+    Returns
+    -------
+    w, m, P, label
+        The corrected, merged mixture (see :func:`merge_mixture`).
+    explained : ndarray, float64, shape (K,)
+        Share of each measurement the mixture explains, ``Σ_j w_jk``.
+    claimed : ndarray, bool, shape (K,)
+        Whether the measurement is in the gate of a confirmed label's component.
+    gated : ndarray, bool, shape (J, K)
+        Component-measurement pairs within the gate.
+    """
+    n = w.shape[0]
+    k_meas = z.shape[0]
+    gated = np.zeros((n, k_meas), dtype=np.bool_)
+    num = np.zeros((n, k_meas))
+    d2s = np.empty((n, k_meas))
+    dets = np.empty((n, k_meas))
+    explained = np.zeros(k_meas)
+    claimed = np.zeros(k_meas, dtype=np.bool_)
+    total = np.zeros(k_meas)
+    for j in range(n):
+        owned = False
+        if confirmed.shape[0]:
+            c = np.searchsorted(confirmed, label[j])
+            owned = c < confirmed.shape[0] and confirmed[c] == label[j]
+        for k in range(k_meas):
+            s00 = P[j, 0, 0] + R[k, 0, 0]
+            s01 = P[j, 0, 2] + R[k, 0, 1]
+            s11 = P[j, 2, 2] + R[k, 1, 1]
+            det = s00 * s11 - s01 * s01
+            n0 = z[k, 0] - m[j, 0]
+            n1 = z[k, 1] - m[j, 2]
+            d2 = (s11 * n0 * n0 - 2.0 * s01 * n0 * n1 + s00 * n1 * n1) / det
+            d2s[j, k] = d2
+            dets[j, k] = det
+            if d2 < gate:
+                gated[j, k] = True
+                if owned:
+                    claimed[k] = True
+                q = math.exp(-0.5 * d2) / (_TWO_PI * math.sqrt(det))
+                num[j, k] = w[j] * detect[j, k] * q
+            total[k] += num[j, k]
+    n_det = 0
+    for k in range(k_meas):
+        explained[k] = total[k] / (kappa[k] + total[k])
+    for j in range(n):
+        for k in range(k_meas):
+            num[j, k] = num[j, k] / (kappa[k] + total[k])
+            if num[j, k] > prune:
+                n_det += 1
+    # missed-detection components first, then the detections in (j, k) order
+    size = n + n_det
+    wu = np.empty(size)
+    mu = np.empty((size, 4))
+    Pu = np.empty((size, 4, 4))
+    lu = np.empty(size, dtype=np.int64)
+    for j in range(n):
+        wu[j] = w[j] * keep[j]
+        lu[j] = label[j]
+        for r in range(4):
+            mu[j, r] = m[j, r]
+            for c in range(4):
+                Pu[j, r, c] = P[j, r, c]
+    i = n
+    for j in range(n):
+        for k in range(k_meas):
+            if not num[j, k] > prune:
+                continue
+            s00 = P[j, 0, 0] + R[k, 0, 0]
+            s01 = P[j, 0, 2] + R[k, 0, 1]
+            s11 = P[j, 2, 2] + R[k, 1, 1]
+            inv_det = 1.0 / dets[j, k]
+            a, b, c = s11 * inv_det, -s01 * inv_det, s00 * inv_det
+            v0 = z[k, 0] - m[j, 0]
+            v1 = z[k, 1] - m[j, 2]
+            wu[i] = num[j, k]
+            lu[i] = label[j]
+            for r in range(4):
+                k0 = P[j, r, 0] * a + P[j, r, 2] * b  # K = P H^T S^{-1}
+                k1 = P[j, r, 0] * b + P[j, r, 2] * c
+                mu[i, r] = m[j, r] + k0 * v0 + k1 * v1
+                for s in range(4):
+                    Pu[i, r, s] = P[j, r, s] - k0 * P[j, s, 0] - k1 * P[j, s, 2]
+            i += 1
+    # prune, then merge and cap
+    keep_idx = np.flatnonzero(wu > prune)
+    wr, mr, Pr, lr = merge_mixture(
+        wu[keep_idx], mu[keep_idx], Pu[keep_idx], lu[keep_idx], confirmed, threshold, cap
+    )
+    return wr, mr, Pr, lr, explained, claimed, gated

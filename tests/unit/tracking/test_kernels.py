@@ -1,0 +1,186 @@
+"""The compiled GM-PHD kernels (``fusion_center.tracking.kernels``) against the numpy
+reference code of ``fusion_center.tracking.gmphd``, and their fallback without a cache."""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion_center.tracking import kernels
+from fusion_center.tracking.base import SensorScan
+from fusion_center.tracking.gmphd import (
+    GmPhdConfig,
+    GmPhdTracker,
+    _cap_label_weight,
+    merge_components,
+)
+
+from .sim import FRAME, crossing_truth, detect, sensors_around
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _random_mixture(rng, n, n_labels):
+    """``n`` components around a few centres (many within the merge gate), some weights
+    tied, labels from ``n_labels``."""
+    centres = rng.uniform(0.0, 8.0, (max(1, n // 4), 4))
+    m = centres[rng.integers(0, centres.shape[0], n)] + rng.normal(0.0, 0.1, (n, 4))
+    a = rng.normal(size=(n, 4, 4))
+    P = a @ np.swapaxes(a, 1, 2) * 0.02 + np.diag([0.05, 0.3, 0.05, 0.3])
+    w = rng.choice([rng.uniform(1e-4, 0.9), 0.25], n)  # ties: 0.25 is drawn repeatedly
+    label = rng.integers(1, n_labels + 1, n).astype(np.int64)
+    return w, m, P, label
+
+
+def _same_mixture(got, want, msg):
+    assert got[0].shape == want[0].shape, msg
+    np.testing.assert_array_equal(got[3], want[3], err_msg=msg)
+    for g, e in zip(got[:3], want[:3], strict=True):
+        np.testing.assert_allclose(g, e, rtol=1e-11, atol=1e-13, err_msg=msg)
+
+
+@pytest.mark.parametrize("cap", [math.inf, 1.0])
+def test_merge_kernel_matches_reference(cap):
+    rng = np.random.default_rng(11)
+    n_merged = n_protected_kept = n_ties = 0
+    for trial in range(150):
+        n = int(rng.integers(0, 40))
+        w, m, P, label = _random_mixture(rng, n, 6)
+        confirmed = np.sort(rng.choice(np.arange(1, 7), int(rng.integers(0, 4)), replace=False))
+        protected = np.isin(label, confirmed) if confirmed.size else None
+        want = merge_components(w, m, P, label, 4.0, protected)
+        if math.isfinite(cap):
+            want = (_cap_label_weight(want[0], want[3], cap), *want[1:])
+        got = kernels.merge_mixture(w, m, P, label, confirmed.astype(np.int64), 4.0, cap)
+        _same_mixture(got, want, f"trial {trial}")
+        n_merged += got[0].size < n
+        n_ties += np.unique(w).size < n
+        if protected is not None and got[0].size < n:
+            # two confirmed labels are never merged into one
+            n_protected_kept += np.isin(confirmed, got[3]).sum() == np.isin(confirmed, label).sum()
+    assert n_merged >= 50 and n_ties >= 50 and n_protected_kept >= 20
+
+
+def _tracker(compiled, **kw):
+    tracker = GmPhdTracker(GmPhdConfig(clutter_rate=1.0, surveillance_area=80.0, **kw))
+    tracker.compiled = compiled
+    return tracker
+
+
+def test_update_kernel_matches_numpy_update_from_random_mixtures():
+    """One scan's correction from random mixtures (confirmed labels, components outside the
+    sensor's view, read-only measurement arrays), sequential and frame fusion."""
+    rng = np.random.default_rng(3)
+    sensors = sensors_around(10.0, 8.0)
+    n_births = n_detected = 0
+    for trial in range(60):
+        ref = _tracker(False, detection_probability=0.9)
+        n = int(rng.integers(0, 30))
+        w, m, P, label = _random_mixture(rng, n, 8)
+        ref._mix.w, ref._mix.m, ref._mix.P, ref._mix.label = w, m, P, label
+        ref._confirmed_arr = np.sort(rng.choice(np.arange(1, 9), 3, replace=False))
+        ref._next_label = 100
+        fast = copy.deepcopy(ref)
+        fast.compiled = True
+        xy = m[rng.integers(0, max(n, 1), 3), ::2] if n else rng.uniform(0, 8, (3, 2))
+        scans = [detect(rng, s, 0.0, xy, clutter=2.0) for s in sensors[: int(rng.integers(1, 4))]]
+        for s in scans:
+            s.positions.flags.writeable = False
+        if len(scans) == 1:
+            births = [tr._update(scans[0]) for tr in (ref, fast)]
+        else:
+            births = [tr._frame_update(0.0, scans) for tr in (ref, fast)]
+        a, b = ref._mix, fast._mix
+        _same_mixture((b.w, b.m, b.P, b.label), (a.w, a.m, a.P, a.label), f"trial {trial}")
+        _same_mixture(
+            (births[1].w, births[1].m, births[1].P, births[1].label),
+            (births[0].w, births[0].m, births[0].P, births[0].label),
+            f"births, trial {trial}",
+        )
+        assert ref.detection_probabilities == pytest.approx(fast.detection_probabilities)
+        n_births += births[0].w.size
+        n_detected += births[0].w.size < sum(s.positions.shape[0] for s in scans)
+    assert n_births >= 20 and n_detected >= 20
+
+
+@pytest.mark.parametrize("max_components", [200, 12])
+def test_tracker_with_kernels_matches_numpy_tracker(max_components):
+    """Whole runs (6 sensors, 3 walkers crossing; one omni sensor in heavy clutter), with the
+    component cap active in the second case: the same tracks up to rounding."""
+    times, truth = crossing_truth(3.0)
+    for sensors, clutter in (
+        (sensors_around(10.0, 8.0), 1.0),
+        (sensors_around(10.0, 8.0)[:1], 5.0),
+    ):
+        outs = []
+        for compiled in (False, True):
+            rng = np.random.default_rng(7)
+            tracker = _tracker(compiled, max_components=max_components)
+            steps = []
+            for k in range(times.size):
+                t = k * FRAME
+                scans = [
+                    detect(rng, s, t + FRAME * j / len(sensors), truth[k], clutter=clutter)
+                    for j, s in enumerate(sensors)
+                ]
+                steps.append(tracker.step(t + FRAME, scans))
+            outs.append(steps)
+        n_tracks = 0
+        for old, new in zip(*outs, strict=True):
+            assert old.ids().tolist() == new.ids().tolist()
+            np.testing.assert_allclose(new.positions(), old.positions(), atol=1e-9)
+            assert new.n_estimate == pytest.approx(old.n_estimate, rel=1e-9)
+            n_tracks += len(new.tracks)
+        assert n_tracks >= times.size  # people were tracked
+
+
+def test_tracking_kernels_work_without_a_writable_numba_cache(tmp_path):
+    """With no usable cache directory the kernels compile in memory (a warning each) and
+    give the same tracks."""
+    code = (
+        "import numpy as np\n"
+        "from fusion_center.tracking.base import SensorScan\n"
+        "from fusion_center.tracking.gmphd import GmPhdConfig, GmPhdTracker\n"
+        "tr = GmPhdTracker(GmPhdConfig(surveillance_area=50.0))\n"
+        "for k in range(40):\n"
+        "    z = np.array([[1.0 + 0.02 * k, 2.0], [4.0, 3.0 - 0.01 * k]])\n"
+        "    scan = SensorScan(sensor='a', t=0.02 * k, positions=z,\n"
+        "                      cov=np.tile(0.01 * np.eye(2), (2, 1, 1)), origin=np.zeros(2))\n"
+        "    out = tr.step(0.02 * k, [scan])\n"
+        "print(np.round(out.positions(), 9).tolist())\n"
+    )
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        # the only cache locator numba may use points below a regular file: not creatable
+        "NUMBA_CACHE_LOCATOR_CLASSES": "UserProvidedCacheLocator",
+        "NUMBA_CACHE_DIR": str(blocked / "numba"),
+    }
+    res = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert res.returncode == 0, res.stderr
+    assert "numba cache unavailable, compiling in memory" in res.stderr
+    tracker = GmPhdTracker(GmPhdConfig(surveillance_area=50.0))
+    tracker.compiled = False
+    for k in range(40):
+        z = np.array([[1.0 + 0.02 * k, 2.0], [4.0, 3.0 - 0.01 * k]])
+        scan = SensorScan(
+            sensor="a",
+            t=0.02 * k,
+            positions=z,
+            cov=np.tile(0.01 * np.eye(2), (2, 1, 1)),
+            origin=np.zeros(2),
+        )
+        out = tracker.step(0.02 * k, [scan])
+    assert len(out.tracks) == 2
+    assert res.stdout.strip() == str(np.round(out.positions(), 9).tolist())

@@ -588,6 +588,13 @@ class GmPhdTracker(Tracker):
         cfg = self.config
         F, Ft, Q = self._model(dt)
         mix = self._mix
+        if self.compiled:
+            w, m, P, src = kernels.predict_mixture(
+                mix.w, mix.m, mix.P, F, Q, cfg.survival_probability**dt,
+                cfg.maneuver_weight, cfg.maneuver_velocity_std**2,
+            )  # fmt: skip
+            self._mix = _Mixture(w, m, P, mix.label[src])
+            return
         mix.w = mix.w * cfg.survival_probability**dt
         mix.m = mix.m @ Ft
         mix.P = F @ mix.P @ Ft + Q
@@ -948,6 +955,8 @@ class GmPhdTracker(Tracker):
     def _occluded_many(self, origins: FloatArray, mix: _Mixture) -> npt.NDArray[np.bool_]:
         """:meth:`_occluded` for sensors at ``origins`` (S, 2) at once, shape (J, S)."""
         cfg = self.config
+        if self.compiled:
+            return kernels.occluded(mix.w, mix.m, mix.label, origins, cfg.occlusion_radius)
         heavy = mix.w > 0.3
         if heavy.sum() == 0:
             return np.zeros((mix.w.size, origins.shape[0]), dtype=bool)
@@ -1038,6 +1047,9 @@ class GmPhdTracker(Tracker):
         """Components shadowed, for ``scan``'s sensor, by a heavier component of another label
         nearer to the sensor within ``occlusion_radius`` of the line of sight."""
         cfg = self.config
+        if self.compiled:
+            origin = np.asarray(scan.origin, dtype=np.float64).reshape(1, 2)
+            return kernels.occluded(mix.w, mix.m, mix.label, origin, cfg.occlusion_radius)[:, 0]
         xy = mix.m[:, ::2] - scan.origin  # (J, 2), relative to the sensor
         heavy = mix.w > 0.3
         if heavy.sum() == 0:
@@ -1084,6 +1096,12 @@ class GmPhdTracker(Tracker):
         n = births.w.size
         if n < 2:
             return births
+        if self.compiled:
+            return _Mixture(
+                *kernels.merge_births(
+                    births.w, births.m, births.P, births.label, self.config.cluster_distance
+                )
+            )
         xy = births.m[:, ::2]
         # Leader clustering (a few births per step): each birth joins the first earlier
         # leader within ``cluster_distance``, else leads a group of its own.
@@ -1114,6 +1132,14 @@ class GmPhdTracker(Tracker):
     ) -> _Mixture:
         """Adaptive birth: one component per poorly explained, unclaimed measurement."""
         cfg = self.config
+        if self.compiled:
+            w, m, P = kernels.seed_births(
+                _writable(scan.positions), _writable(scan.cov), explained, claimed,
+                cfg.birth_max_association, cfg.birth_weight, cfg.birth_velocity_std**2,
+            )  # fmt: skip
+            labels = np.arange(self._next_label, self._next_label + w.size, dtype=np.int64)
+            self._next_label += w.size
+            return _Mixture(w, m, P, labels)
         seed = (explained < cfg.birth_max_association) & ~claimed
         n = int(seed.sum())
         if n == 0:
@@ -1241,6 +1267,12 @@ class GmPhdTracker(Tracker):
         if mix.w.size < 2 or cfg.duplicate_steps <= 0:
             self._dup_count.clear()
             return
+        if self.compiled:
+            pairs = kernels.duplicate_pairs(
+                mix.w, mix.m, mix.label, 0.05, cfg.duplicate_distance, cfg.duplicate_velocity
+            )
+            self._count_duplicates(pairs.tolist() if pairs.shape[1] == 2 else None)
+            return
         order = np.lexsort((-mix.w, mix.label))
         lab = mix.label[order]
         first = np.ones(lab.size, dtype=bool)
@@ -1255,11 +1287,23 @@ class GmPhdTracker(Tracker):
         dp = np.linalg.norm(m[:, None, ::2] - m[None, :, ::2], axis=2)
         dv = np.linalg.norm(m[:, None, 1::2] - m[None, :, 1::2], axis=2)
         close = np.triu((dp < cfg.duplicate_distance) & (dv < cfg.duplicate_velocity), 1)
+        self._count_duplicates(
+            [(int(labels[i]), int(labels[j])) for i, j in zip(*np.nonzero(close), strict=True)]
+        )
+
+    def _count_duplicates(self, pairs: list[tuple[int, int]] | list[list[int]] | None) -> None:
+        """Count each pair of labels ``pairs`` found close this step and fold those close for
+        ``duplicate_steps`` (``None``: fewer than two labels, every count is reset)."""
+        cfg = self.config
+        mix = self._mix
+        if pairs is None:
+            self._dup_count.clear()
+            return
         # A pair that is apart for a step loses one count rather than all: the weights of
         # labels sharing one person fluctuate, and one step apart is no proof of two people.
         counts = {k: v - 1 for k, v in self._dup_count.items() if v > 1}
-        for i, j in zip(*np.nonzero(close), strict=True):
-            a, b = sorted((int(labels[i]), int(labels[j])))
+        for pair in pairs:
+            a, b = sorted(pair)
             counts[(a, b)] = self._dup_count.get((a, b), 0) + 1
         self._dup_count = counts
         for (a, b), n in counts.items():
@@ -1269,19 +1313,10 @@ class GmPhdTracker(Tracker):
                 self._hits.pop(b, None)
                 self._strong_time.pop(b, None)
 
-    def _extract(self, t: float) -> TrackerOutput:
-        """Labelled estimates: per label, the heaviest component; sum of weights as ``w``."""
+    def _label_heads(self, mix: _Mixture) -> tuple[npt.NDArray[np.intp], FloatArray]:
+        """Each label's heaviest component (ascending label order) and summed weight, after
+        giving a second heavy component of a label, away from its head, a fresh label."""
         cfg = self.config
-        mix = self._mix
-        if mix.w.size == 0:
-            self._lost.update(self._last_report)
-            self._last_report = {}
-            self._hits.clear()
-            self._strong_time.clear()
-            self._t_extract = t
-            self._confirmed.clear()
-            self._confirmed_arr = np.zeros(0, dtype=np.int64)
-            return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
         # Sort by label, then by decreasing weight: the first of each label is its heaviest.
         order = np.lexsort((-mix.w, mix.label))
         lab = mix.label[order]
@@ -1309,7 +1344,29 @@ class GmPhdTracker(Tracker):
         starts = np.flatnonzero(first)
         label_w = np.add.reduceat(mix.w[order], starts)
         heads = order[starts]
-        labels = lab[starts]
+        return heads, label_w
+
+    def _extract(self, t: float) -> TrackerOutput:
+        """Labelled estimates: per label, the heaviest component; sum of weights as ``w``."""
+        cfg = self.config
+        mix = self._mix
+        if mix.w.size == 0:
+            self._lost.update(self._last_report)
+            self._last_report = {}
+            self._hits.clear()
+            self._strong_time.clear()
+            self._t_extract = t
+            self._confirmed.clear()
+            self._confirmed_arr = np.zeros(0, dtype=np.int64)
+            return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
+        if self.compiled:
+            mix.label, heads, label_w, self._next_label = kernels.label_heads(
+                mix.w, mix.m, mix.P, mix.label, cfg.split_threshold, cfg.merge_threshold,
+                self._next_label,
+            )  # fmt: skip
+        else:
+            heads, label_w = self._label_heads(mix)
+        labels = mix.label[heads]
         strong = label_w >= cfg.extract_threshold
 
         hits, strong_time = {}, {}

@@ -380,3 +380,344 @@ def gmphd_correct(
         wu[keep_idx], mu[keep_idx], Pu[keep_idx], lu[keep_idx], confirmed, threshold, cap
     )
     return wr, mr, Pr, lr, explained, claimed, gated
+
+
+@_njit(
+    _MIXTURE + "(float64[:], float64[:, :], float64[:, :, :], float64[:, :], float64[:, :],"
+    " float64, float64, float64)"
+)
+def predict_mixture(w, m, P, F, Q, ps, maneuver_weight, maneuver_var):  # pragma: no cover
+    """GM-PHD prediction (Vo & Ma 2006, eqs. (16)-(17)) with the manoeuvre copies.
+
+    :math:`w \\leftarrow p_S w`, :math:`m \\leftarrow F m`, :math:`P \\leftarrow F P F^T + Q`;
+    then every component heavier than 0.3 gives ``maneuver_weight`` of its weight to a copy
+    with the velocity reset to zero, variance ``maneuver_var`` per axis (see
+    ``GmPhdTracker._predict``).
+
+    Parameters
+    ----------
+    w, m, P : ndarray, shapes (J,), (J, 4), (J, 4, 4)
+        The mixture, state ``[x, vx, y, vy]``.
+    F, Q : ndarray, float64, shape (4, 4)
+        Transition matrix and process noise covariance of the step.
+    ps : float
+        Survival probability of the step.
+    maneuver_weight, maneuver_var : float
+        Share of weight of a manoeuvre copy (0: none) and its velocity variance, m²/s².
+
+    Returns
+    -------
+    w, m, P : the predicted components, then the copies
+    src : ndarray, int64, shape (J + copies,)
+        The component each came from (for its label).
+    """
+    n = w.shape[0]
+    n_copy = 0
+    if maneuver_weight > 0.0:
+        for j in range(n):
+            if w[j] * ps > 0.3:
+                n_copy += 1
+    size = n + n_copy
+    wo = np.empty(size)
+    mo = np.empty((size, 4))
+    Po = np.empty((size, 4, 4))
+    src = np.empty(size, dtype=np.int64)
+    fp = np.empty((4, 4))
+    for j in range(n):
+        wo[j] = w[j] * ps
+        src[j] = j
+        for r in range(4):
+            acc = 0.0
+            for c in range(4):
+                acc += m[j, c] * F[r, c]
+            mo[j, r] = acc
+            for c in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += F[r, k] * P[j, k, c]
+                fp[r, c] = acc
+        for r in range(4):
+            for c in range(4):
+                acc = 0.0
+                for k in range(4):
+                    acc += fp[r, k] * F[c, k]
+                Po[j, r, c] = acc + Q[r, c]
+    i = n
+    for j in range(n):
+        if n_copy == 0 or not wo[j] > 0.3:
+            continue
+        wc = wo[j] * maneuver_weight
+        wo[j] -= wc
+        wo[i] = wc
+        src[i] = j
+        for r in range(4):
+            mo[i, r] = mo[j, r] if r % 2 == 0 else 0.0
+            for c in range(4):
+                Po[i, r, c] = Po[j, r, c] if r % 2 == 0 and c % 2 == 0 else 0.0
+        Po[i, 1, 1] = maneuver_var
+        Po[i, 3, 3] = maneuver_var
+        i += 1
+    return wo, mo, Po, src
+
+
+@_njit(
+    "Tuple((float64[:], float64[:, :], float64[:, :, :]))"
+    "(float64[:, :], float64[:, :, :], float64[:], boolean[:], float64, float64, float64)"
+)
+def seed_births(
+    z, R, explained, claimed, max_association, weight, velocity_var
+):  # pragma: no cover
+    """Adaptive birth (Ristic, Clark, Vo & Vo 2012): one component per measurement that the
+    mixture explains by less than ``max_association`` and no confirmed track claims.
+
+    Parameters
+    ----------
+    z : ndarray, float64, shape (K, 2)
+        Measured positions, m.
+    R : ndarray, float64, shape (K, 2, 2)
+        Their covariances, m² (the birth's position covariance).
+    explained : ndarray, float64, shape (K,)
+        Share ``r`` of each measurement explained by the mixture.
+    claimed : ndarray, bool, shape (K,)
+    max_association, weight, velocity_var : float
+        ``birth_max_association``, ``birth_weight`` (a birth weighs ``weight (1 - r)``) and
+        the velocity variance per axis, m²/s².
+
+    Returns
+    -------
+    w, m, P : the births, in measurement order, state ``[x, vx, y, vy]``
+    """
+    k_meas = z.shape[0]
+    n = 0
+    for k in range(k_meas):
+        if explained[k] < max_association and not claimed[k]:
+            n += 1
+    w = np.empty(n)
+    m = np.zeros((n, 4))
+    P = np.zeros((n, 4, 4))
+    i = 0
+    for k in range(k_meas):
+        if not (explained[k] < max_association and not claimed[k]):
+            continue
+        w[i] = weight * (1.0 - explained[k])
+        m[i, 0], m[i, 2] = z[k, 0], z[k, 1]
+        P[i, 0, 0], P[i, 0, 2], P[i, 2, 0], P[i, 2, 2] = (
+            R[k, 0, 0],
+            R[k, 0, 1],
+            R[k, 1, 0],
+            R[k, 1, 1],
+        )
+        P[i, 1, 1] = P[i, 3, 3] = velocity_var
+        i += 1
+    return w, m, P
+
+
+@_njit(_MIXTURE + "(float64[:], float64[:, :], float64[:, :, :], int64[:], float64)")
+def merge_births(w, m, P, label, cluster_distance):  # pragma: no cover
+    """One birth per person: leader clustering of one step's births within
+    ``cluster_distance`` (m), moment-matched, weights summed and capped at 1, the first
+    birth's label (``GmPhdTracker._merge_births``).
+
+    Parameters
+    ----------
+    w, m, P, label : ndarray, shapes (B,), (B, 4), (B, 4, 4), (B,)
+
+    Returns
+    -------
+    w, m, P, label : the merged births, one per group, in order of their first member
+    """
+    n = w.shape[0]
+    group = np.full(n, -1, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        if group[i] >= 0:
+            continue
+        for j in range(n):
+            if group[j] < 0:
+                dx = m[i, 0] - m[j, 0]
+                dy = m[i, 2] - m[j, 2]
+                if math.sqrt(dx * dx + dy * dy) <= cluster_distance:
+                    group[j] = k
+        k += 1
+    if k == n:
+        return w.copy(), m.copy(), P.copy(), label.copy()
+    wo = np.zeros(k)
+    mo = np.zeros((k, 4))
+    Po = np.zeros((k, 4, 4))
+    lo = np.empty(k, dtype=np.int64)
+    first = np.full(k, -1, dtype=np.int64)
+    for i in range(n):
+        g = group[i]
+        wo[g] += w[i]
+        if first[g] < 0:
+            first[g] = i
+            lo[g] = label[i]
+    for i in range(n):
+        for r in range(4):
+            mo[group[i], r] += w[i] * m[i, r]
+    for g in range(k):
+        for r in range(4):
+            mo[g, r] /= wo[g]
+    d = np.empty(4)
+    for i in range(n):
+        g = group[i]
+        for r in range(4):
+            d[r] = m[i, r] - mo[g, r]
+        for r in range(4):
+            for c in range(4):
+                Po[g, r, c] += w[i] * (P[i, r, c] + d[r] * d[c])
+    for g in range(k):
+        for r in range(4):
+            for c in range(4):
+                Po[g, r, c] /= wo[g]
+        wo[g] = min(wo[g], 1.0)
+    return wo, mo, Po, lo
+
+
+@_njit("int64[:](float64[:], int64[:])")
+def _by_label(w, label):  # pragma: no cover
+    """Indices sorted by label, then by decreasing weight (``np.lexsort((-w, label))``)."""
+    by_weight = np.argsort(-w, kind="mergesort")
+    return by_weight[np.argsort(label[by_weight], kind="mergesort")]
+
+
+@_njit(
+    "Tuple((int64[:], int64[:], float64[:], int64))"
+    "(float64[:], float64[:, :], float64[:, :, :], int64[:], float64, float64, int64)"
+)
+def label_heads(w, m, P, label, split_threshold, merge_threshold, next_label):  # pragma: no cover
+    """Per label, its heaviest component and summed weight (``GmPhdTracker._extract``).
+
+    First a component of a label other than its heaviest (the head) that weighs at least
+    ``split_threshold`` and lies beyond the squared Mahalanobis distance ``merge_threshold``
+    from the head (positions, under the head's position covariance) gets a fresh label
+    ``next_label, next_label + 1, ...``, in (label, decreasing weight) order: it is another
+    person.
+
+    Parameters
+    ----------
+    w, m, P, label : ndarray, shapes (J,), (J, 4), (J, 4, 4), (J,)
+    split_threshold, merge_threshold : float
+    next_label : int
+
+    Returns
+    -------
+    label : ndarray, int64, shape (J,)
+        The labels after splitting (a new array).
+    heads : ndarray, int64, shape (L,)
+        Each label's heaviest component (first of equal weights), in ascending label order.
+    label_w : ndarray, float64, shape (L,)
+        Each label's summed weight.
+    next_label : int
+        The next unused label.
+    """
+    n = w.shape[0]
+    orig = label
+    label = label.copy()
+    order = _by_label(w, label)
+    head = -1
+    for g in range(n):
+        i = order[g]
+        if g == 0 or orig[i] != orig[order[g - 1]]:
+            head = i
+            continue
+        if w[i] < split_threshold:
+            continue
+        dx = m[i, 0] - m[head, 0]
+        dy = m[i, 2] - m[head, 2]
+        a, b, c = P[head, 0, 0], P[head, 0, 2], P[head, 2, 2]
+        if (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b) > merge_threshold:
+            label[i] = next_label
+            next_label += 1
+    order = _by_label(w, label)
+    n_labels = 0
+    for g in range(n):
+        if g == 0 or label[order[g]] != label[order[g - 1]]:
+            n_labels += 1
+    heads = np.empty(n_labels, dtype=np.int64)
+    label_w = np.zeros(n_labels)
+    h = -1
+    for g in range(n):
+        i = order[g]
+        if g == 0 or label[i] != label[order[g - 1]]:
+            h += 1
+            heads[h] = i
+        label_w[h] += w[i]
+    return label, heads, label_w, next_label
+
+
+@_njit("int64[:, :](float64[:], float64[:, :], int64[:], float64, float64, float64)")
+def duplicate_pairs(w, m, label, min_weight, distance, velocity):  # pragma: no cover
+    """Pairs of labels whose heads (heaviest components, if above ``min_weight``) are within
+    ``distance`` (m) in position and ``velocity`` (m/s) in velocity
+    (``GmPhdTracker._fold_duplicate_labels``).
+
+    Returns
+    -------
+    ndarray, int64, shape (n, 2)
+        ``(a, b)`` with ``a < b``, in ascending order of ``a`` then ``b``; shape (0, 1) when
+        fewer than two labels have a head above ``min_weight``.
+    """
+    n = w.shape[0]
+    order = _by_label(w, label)
+    heads = np.empty(n, dtype=np.int64)
+    n_heads = 0
+    for g in range(n):
+        i = order[g]
+        if (g == 0 or label[i] != label[order[g - 1]]) and w[i] > min_weight:
+            heads[n_heads] = i
+            n_heads += 1
+    if n_heads < 2:
+        return np.empty((0, 1), dtype=np.int64)
+    out = np.empty((n_heads * (n_heads - 1) // 2, 2), dtype=np.int64)
+    n_pairs = 0
+    for a in range(n_heads):
+        i = heads[a]
+        for b in range(a + 1, n_heads):
+            j = heads[b]
+            dx, dy = m[i, 0] - m[j, 0], m[i, 2] - m[j, 2]
+            dvx, dvy = m[i, 1] - m[j, 1], m[i, 3] - m[j, 3]
+            if (
+                math.sqrt(dx * dx + dy * dy) < distance
+                and math.sqrt(dvx * dvx + dvy * dvy) < velocity
+            ):
+                out[n_pairs, 0] = label[i]
+                out[n_pairs, 1] = label[j]
+                n_pairs += 1
+    return out[:n_pairs]
+
+
+@_njit("boolean[:, :](float64[:], float64[:, :], int64[:], float64[:, :], float64)")
+def occluded(w, m, label, origins, radius):  # pragma: no cover
+    """Components shadowed for each sensor (``GmPhdTracker._occluded_many``): a component
+    of another label heavier than 0.3 stands nearer to the sensor, less than ``radius``
+    (m) from the line of sight and more than ``2 radius`` before the component.
+
+    Parameters
+    ----------
+    w, m, label : ndarray, shapes (J,), (J, 4), (J,)
+    origins : ndarray, float64, shape (S, 2)
+        The sensors' positions, m.
+    radius : float
+
+    Returns
+    -------
+    ndarray, bool, shape (J, S)
+    """
+    n, n_s = w.shape[0], origins.shape[0]
+    out = np.zeros((n, n_s), dtype=np.bool_)
+    for s in range(n_s):
+        ox, oy = origins[s, 0], origins[s, 1]
+        for j in range(n):
+            x, y = m[j, 0] - ox, m[j, 2] - oy
+            dist = math.sqrt(x * x + y * y)
+            ux, uy = x / max(dist, 1e-9), y / max(dist, 1e-9)
+            for o in range(n):
+                if not w[o] > 0.3 or label[o] == label[j]:
+                    continue
+                px, py = m[o, 0] - ox, m[o, 2] - oy
+                along = px * ux + py * uy
+                if along > 0.0 and along < dist - 2.0 * radius and abs(px * uy - py * ux) < radius:
+                    out[j, s] = True
+                    break
+    return out

@@ -907,7 +907,7 @@ class GmPhdTracker(Tracker):
         sight = self._sights([scans[i] for i in cols.tolist()], xy, v)
         pd = np.where(v, profiles[np.arange(cols.size), rbin], 0.0) * sight
         if cfg.occluded_factor < 1.0 and n_j > 1:
-            pd *= np.where(self._occluded_many(origin[cols], mix), cfg.occluded_factor, 1.0)
+            pd *= np.where(self._occluded_many(origin[cols], mix, v), cfg.occluded_factor, 1.0)
         pd_js[:, cols] = pd
         if cfg.adapt_detection:
             seen = (v & (sight >= 1.0))[heavy]  # (H, S')
@@ -952,11 +952,17 @@ class GmPhdTracker(Tracker):
         out[j, s] = pairs(np.array([scan.origin for scan in scans])[s], xy[j])
         return out
 
-    def _occluded_many(self, origins: FloatArray, mix: _Mixture) -> npt.NDArray[np.bool_]:
-        """:meth:`_occluded` for sensors at ``origins`` (S, 2) at once, shape (J, S)."""
+    def _occluded_many(
+        self, origins: FloatArray, mix: _Mixture, mask: npt.NDArray[np.bool_] | None = None
+    ) -> npt.NDArray[np.bool_]:
+        """:meth:`_occluded` for sensors at ``origins`` (S, 2) at once, shape (J, S); where
+        ``mask`` (J, S) is False (a sensor that cannot see the component) the result may be
+        False whatever the geometry."""
         cfg = self.config
         if self.compiled:
-            return kernels.occluded(mix.w, mix.m, mix.label, origins, cfg.occlusion_radius)
+            if mask is None:
+                mask = np.ones((mix.w.size, origins.shape[0]), dtype=bool)
+            return kernels.occluded(mix.w, mix.m, mix.label, origins, mask, cfg.occlusion_radius)
         heavy = mix.w > 0.3
         if heavy.sum() == 0:
             return np.zeros((mix.w.size, origins.shape[0]), dtype=bool)
@@ -1049,7 +1055,10 @@ class GmPhdTracker(Tracker):
         cfg = self.config
         if self.compiled:
             origin = np.asarray(scan.origin, dtype=np.float64).reshape(1, 2)
-            return kernels.occluded(mix.w, mix.m, mix.label, origin, cfg.occlusion_radius)[:, 0]
+            everywhere = np.ones((mix.w.size, 1), dtype=bool)
+            return kernels.occluded(
+                mix.w, mix.m, mix.label, origin, everywhere, cfg.occlusion_radius
+            )[:, 0]
         xy = mix.m[:, ::2] - scan.origin  # (J, 2), relative to the sensor
         heavy = mix.w > 0.3
         if heavy.sum() == 0:

@@ -687,8 +687,8 @@ def duplicate_pairs(w, m, label, min_weight, distance, velocity):  # pragma: no 
     return out[:n_pairs]
 
 
-@_njit("boolean[:, :](float64[:], float64[:, :], int64[:], float64[:, :], float64)")
-def occluded(w, m, label, origins, radius):  # pragma: no cover
+@_njit("boolean[:, :](float64[:], float64[:, :], int64[:], float64[:, :], boolean[:, :], float64)")
+def occluded(w, m, label, origins, mask, radius):  # pragma: no cover
     """Components shadowed for each sensor (``GmPhdTracker._occluded_many``): a component
     of another label heavier than 0.3 stands nearer to the sensor, less than ``radius``
     (m) from the line of sight and more than ``2 radius`` before the component.
@@ -698,6 +698,8 @@ def occluded(w, m, label, origins, radius):  # pragma: no cover
     w, m, label : ndarray, shapes (J,), (J, 4), (J,)
     origins : ndarray, float64, shape (S, 2)
         The sensors' positions, m.
+    mask : ndarray, bool, shape (J, S)
+        The pairs to test (those a sensor can see); the others are False.
     radius : float
 
     Returns
@@ -706,18 +708,26 @@ def occluded(w, m, label, origins, radius):  # pragma: no cover
     """
     n, n_s = w.shape[0], origins.shape[0]
     out = np.zeros((n, n_s), dtype=np.bool_)
+    heavy = np.flatnonzero(w > 0.3)
+    if heavy.shape[0] == 0:
+        return out
     for s in range(n_s):
         ox, oy = origins[s, 0], origins[s, 1]
         for j in range(n):
+            if not mask[j, s]:
+                continue
             x, y = m[j, 0] - ox, m[j, 2] - oy
             dist = math.sqrt(x * x + y * y)
             ux, uy = x / max(dist, 1e-9), y / max(dist, 1e-9)
-            for o in range(n):
-                if not w[o] > 0.3 or label[o] == label[j]:
-                    continue
+            for o in heavy:
                 px, py = m[o, 0] - ox, m[o, 2] - oy
                 along = px * ux + py * uy
-                if along > 0.0 and along < dist - 2.0 * radius and abs(px * uy - py * ux) < radius:
+                if (
+                    along > 0.0
+                    and along < dist - 2.0 * radius
+                    and abs(px * uy - py * ux) < radius
+                    and label[o] != label[j]
+                ):
                     out[j, s] = True
                     break
     return out

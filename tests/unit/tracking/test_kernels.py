@@ -130,6 +130,9 @@ def test_small_kernels_match_numpy_methods_from_random_mixtures():
         origins = rng.uniform(-2.0, 10.0, (3, 2))
         want = ref._occluded_many(origins, ref._mix)
         np.testing.assert_array_equal(fast._occluded_many(origins, fast._mix), want, msg)
+        mask = rng.random(want.shape) < 0.5
+        got = fast._occluded_many(origins, fast._mix, mask)
+        np.testing.assert_array_equal(got, want & mask, msg)
         n_occluded += want.sum()
         if n:
             births = ref._mix.take(rng.random(n) < 0.5)

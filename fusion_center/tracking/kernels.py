@@ -39,13 +39,38 @@ def _njit(signature):
     return decorate
 
 
+@_njit("int64[:](float64[:])")
+def _argsort(key):  # pragma: no cover
+    """Stable ascending argsort (``np.argsort(key, kind="stable")``): a bottom-up merge sort,
+    written out because numba's generic sort costs seconds of compile time per kernel."""
+    n = key.shape[0]
+    order = np.arange(n)
+    buf = np.empty(n, dtype=np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid = min(lo + width, n)
+            hi = min(lo + 2 * width, n)
+            i, j = lo, mid
+            for k in range(lo, hi):
+                if j < hi and (i >= mid or key[order[j]] < key[order[i]]):
+                    buf[k] = order[j]
+                    j += 1
+                else:
+                    buf[k] = order[i]
+                    i += 1
+        order, buf = buf, order
+        width *= 2
+    return order
+
+
 @_njit("void(float64[:], int64[:], float64)")
 def _cap(w, label, cap):  # pragma: no cover
     """Scale each label's weights in place so that they sum to at most ``cap``."""
     n = w.shape[0]
     if n == 0 or math.isinf(cap):
         return
-    order = np.argsort(label, kind="mergesort")
+    order = _argsort(label.astype(np.float64))
     start = 0
     while start < n:
         stop = start
@@ -104,7 +129,7 @@ def merge_mixture(w, m, P, label, confirmed, threshold, cap):  # pragma: no cove
         The merged mixture, sorted by decreasing weight (stable) before the cap.
     """
     n = w.shape[0]
-    order = np.argsort(-w, kind="mergesort")
+    order = _argsort(-w)
     ws = np.empty(n)
     ms = np.empty((n, 4))
     Ps = np.empty((n, 4, 4))
@@ -193,7 +218,7 @@ def merge_mixture(w, m, P, label, confirmed, threshold, cap):  # pragma: no cove
         return ws, ms, Ps, ls
 
     # moment matching, members in index (weight) order within each cluster
-    grouped = np.argsort(assign, kind="mergesort")
+    grouped = _argsort(assign.astype(np.float64))
     w_new = np.zeros(n_clusters)
     m_new = np.zeros((n_clusters, 4))
     P_new = np.zeros((n_clusters, 4, 4))
@@ -230,7 +255,7 @@ def merge_mixture(w, m, P, label, confirmed, threshold, cap):  # pragma: no cove
             label_new[assign[i]] = ls[i]
             have_prot[assign[i]] = True
 
-    by_weight = np.argsort(-w_new, kind="mergesort")
+    by_weight = _argsort(-w_new)
     wo = np.empty(n_clusters)
     mo = np.empty((n_clusters, 4))
     Po = np.empty((n_clusters, 4, 4))
@@ -577,8 +602,8 @@ def merge_births(w, m, P, label, cluster_distance):  # pragma: no cover
 @_njit("int64[:](float64[:], int64[:])")
 def _by_label(w, label):  # pragma: no cover
     """Indices sorted by label, then by decreasing weight (``np.lexsort((-w, label))``)."""
-    by_weight = np.argsort(-w, kind="mergesort")
-    return by_weight[np.argsort(label[by_weight], kind="mergesort")]
+    by_weight = _argsort(-w)
+    return by_weight[_argsort(label[by_weight].astype(np.float64))]
 
 
 @_njit(

@@ -1054,7 +1054,7 @@ class GmPhdTracker(Tracker):
         nearer to the sensor within ``occlusion_radius`` of the line of sight."""
         cfg = self.config
         if self.compiled:
-            origin = np.asarray(scan.origin, dtype=np.float64).reshape(1, 2)
+            origin = np.array(scan.origin, dtype=np.float64).reshape(1, 2)
             everywhere = np.ones((mix.w.size, 1), dtype=bool)
             return kernels.occluded(
                 mix.w, mix.m, mix.label, origin, everywhere, cfg.occlusion_radius

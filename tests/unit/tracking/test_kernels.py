@@ -91,8 +91,10 @@ def test_update_kernel_matches_numpy_update_from_random_mixtures():
         fast.compiled = True
         xy = m[rng.integers(0, max(n, 1), 3), ::2] if n else rng.uniform(0, 8, (3, 2))
         scans = [detect(rng, s, 0.0, xy, clutter=2.0) for s in sensors[: int(rng.integers(1, 4))]]
-        for s in scans:
+        for s in scans:  # as decoded from the wire
             s.positions.flags.writeable = False
+            s.cov.flags.writeable = False
+            s.origin.flags.writeable = False
         if len(scans) == 1:
             births = [tr._update(scans[0]) for tr in (ref, fast)]
         else:

@@ -590,9 +590,15 @@ class GmPhdTracker(Tracker):
         mix = self._mix
         if self.compiled:
             w, m, P, src = kernels.predict_mixture(
-                mix.w, mix.m, mix.P, F, Q, cfg.survival_probability**dt,
-                cfg.maneuver_weight, cfg.maneuver_velocity_std**2,
-            )  # fmt: skip
+                mix.w,
+                mix.m,
+                mix.P,
+                F,
+                Q,
+                cfg.survival_probability**dt,
+                cfg.maneuver_weight,
+                cfg.maneuver_velocity_std**2,
+            )
             self._mix = _Mixture(w, m, P, mix.label[src])
             return
         mix.w = mix.w * cfg.survival_probability**dt
@@ -766,11 +772,21 @@ class GmPhdTracker(Tracker):
         else:
             detect = frame[0]
         w, m, P, label, explained, claimed, gated = kernels.gmphd_correct(
-            act.w, act.m, act.P, act.label, _writable(detect), 1.0 - pd, _writable(z),
-            _writable(R), np.broadcast_to(kappa, (n_meas,)).astype(np.float64),
-            self._confirmed_arr, cfg.gate, cfg.prune_threshold, cfg.merge_threshold,
+            act.w,
+            act.m,
+            act.P,
+            act.label,
+            _writable(detect),
+            1.0 - pd,
+            _writable(z),
+            _writable(R),
+            np.broadcast_to(kappa, (n_meas,)).astype(np.float64),
+            self._confirmed_arr,
+            cfg.gate,
+            cfg.prune_threshold,
+            cfg.merge_threshold,
             cfg.max_label_weight,
-        )  # fmt: skip
+        )
         if cfg.adapt_detection and frame is None and n_act and n_meas:
             self._learn_detection(scan, act, visible, gated)
         done = _Mixture(w, m, P, label)
@@ -1143,9 +1159,14 @@ class GmPhdTracker(Tracker):
         cfg = self.config
         if self.compiled:
             w, m, P = kernels.seed_births(
-                _writable(scan.positions), _writable(scan.cov), explained, claimed,
-                cfg.birth_max_association, cfg.birth_weight, cfg.birth_velocity_std**2,
-            )  # fmt: skip
+                _writable(scan.positions),
+                _writable(scan.cov),
+                explained,
+                claimed,
+                cfg.birth_max_association,
+                cfg.birth_weight,
+                cfg.birth_velocity_std**2,
+            )
             labels = np.arange(self._next_label, self._next_label + w.size, dtype=np.int64)
             self._next_label += w.size
             return _Mixture(w, m, P, labels)
@@ -1218,10 +1239,11 @@ class GmPhdTracker(Tracker):
             self._births = self._merge_births(
                 births[0] if len(births) == 1 else _Mixture.concat(births)
             )
-        if len(scans) > 1 and self._mix.w.size > 1 and self.compiled:
+        if len(scans) > 1 and self._mix.w.size > 1:
+            # Components of one target seen by different sensors were merged per sensor only.
             mix = self._mix
-            self._mix = _Mixture(
-                *kernels.merge_mixture(
+            if self.compiled:
+                merged = kernels.merge_mixture(
                     mix.w,
                     mix.m,
                     mix.P,
@@ -1230,12 +1252,8 @@ class GmPhdTracker(Tracker):
                     self.config.merge_threshold,
                     math.inf,
                 )
-            )
-        elif len(scans) > 1 and self._mix.w.size > 1:
-            # Components of one target seen by different sensors were merged per sensor only.
-            mix = self._mix
-            self._mix = _Mixture(
-                *merge_components(
+            else:
+                merged = merge_components(
                     mix.w,
                     mix.m,
                     mix.P,
@@ -1243,7 +1261,7 @@ class GmPhdTracker(Tracker):
                     self.config.merge_threshold,
                     self._protected(mix),
                 )
-            )
+            self._mix = _Mixture(*merged)
         mix = self._mix
         if mix.w.size > self.config.max_components:
             self._mix = mix.take(np.argsort(-mix.w)[: self.config.max_components])
@@ -1370,9 +1388,14 @@ class GmPhdTracker(Tracker):
             return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
         if self.compiled:
             mix.label, heads, label_w, self._next_label = kernels.label_heads(
-                mix.w, mix.m, mix.P, mix.label, cfg.split_threshold, cfg.merge_threshold,
+                mix.w,
+                mix.m,
+                mix.P,
+                mix.label,
+                cfg.split_threshold,
+                cfg.merge_threshold,
                 self._next_label,
-            )  # fmt: skip
+            )
         else:
             heads, label_w = self._label_heads(mix)
         labels = mix.label[heads]

@@ -18,7 +18,8 @@ from collections import defaultdict
 import numpy as np
 
 from fusion_center.tracking.base import SensorScan, Tracker, TrackerOutput
-from node_agent.core import NodeConfigError, sensor_geometry
+from node_agent.core import NodeConfigError, radar_params, sensor_geometry
+from node_agent.dsp.geometry import WINDOW_GUARD
 from protocol import C, Detections, NodeInfo
 
 log = logging.getLogger(__name__)
@@ -36,11 +37,19 @@ class FusionCoreConfig:
     view_margin : angle (rad) added on each side of a sensor's 3 dB beam for the tracker's
         field of view: antennas still see people somewhat outside it (the node DSP keeps
         intersections up to its ``fov_margin`` beyond the beam).
+    window_guard : pulse widths at the window's ends in which the nodes search no echo
+        (``NodeDspConfig.window_guard``): a sensor is blind to people nearer than half the
+        window's first measurable bistatic range.
+    blind_zone : give the tracker each sensor's blind zone (``SensorScan.min_range``, no
+        detection expected nearer than half the first measurable bistatic range). Off by
+        default: measured worse on the outside proxy recordings (docs/blind_zone.md).
     """
 
     frame_lag: int = 2
     max_range: float = 15.0
     view_margin: float = 0.35
+    window_guard: float = WINDOW_GUARD
+    blind_zone: bool = False
 
 
 @dataclasses.dataclass(slots=True)
@@ -67,6 +76,7 @@ class FusionCore:
         self._last_t = -math.inf
         self._seen: dict[str, tuple[int, float]] = {}
         self._views: dict[tuple[str, str, tuple[str, ...]], tuple[np.ndarray, float, float]] = {}
+        self._blind: dict[str, float] = {}  # each node's blind distance, m
         #: Sensors expected to report in every frame (the TDMA schedule's); empty: unknown.
         self.expected: frozenset[str] = frozenset()
 
@@ -74,6 +84,7 @@ class FusionCore:
         """Take (or refresh) a node's description."""
         self.nodes[info.src] = info
         self._views = {k: v for k, v in self._views.items() if k[0] != info.src}
+        self._blind.pop(info.src, None)
 
     def _view(self, det: Detections) -> tuple[np.ndarray, float, float]:
         """Array centre (world x, y), boresight and beamwidth of the sensor behind ``det``."""
@@ -93,6 +104,20 @@ class FusionCore:
         r = info.radar
         window = C * (r.t0 + r.n / r.fs) / 2.0
         return min(self.config.max_range, window)
+
+    def _min_range(self, info: NodeInfo) -> float:
+        if not self.config.blind_zone:
+            return 0.0
+        blind = self._blind.get(info.src)
+        if blind is None:
+            # half the shortest bistatic range the node measures (RadarParams.measurable):
+            # a bat sensor's antennas are close together, a person at d is at about 2 d
+            try:
+                lo, _ = radar_params(info).measurable(self.config.window_guard)
+            except NodeConfigError:
+                lo = 0.0
+            blind = self._blind[info.src] = max(lo / 2.0, 0.0)
+        return blind
 
     def add_detections(self, det: Detections) -> list[TrackerOutput]:
         """Queue one node's detections; return the tracker outputs of frames now complete.
@@ -136,6 +161,7 @@ class FusionCore:
                 boresight=boresight,
                 beamwidth=beamwidth,
                 max_range=self._max_range(self.nodes[det.src]),
+                min_range=self._min_range(self.nodes[det.src]),
             )
         )
         frame = self._pending[det.frame]

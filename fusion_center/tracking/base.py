@@ -49,6 +49,9 @@ class SensorScan:
         Full opening angle of the field of view, rad (``2*pi`` for an omni sensor).
     max_range : float
         Maximum distance from ``origin`` at which the sensor detects a person, m.
+    min_range : float
+        Distance from ``origin`` within which the sensor detects no one, m: its blind zone
+        (a radar window that starts after the emission, ``t0 > 0``).
     """
 
     sensor: str
@@ -59,6 +62,7 @@ class SensorScan:
     boresight: float = 0.0
     beamwidth: float = 2.0 * math.pi
     max_range: float = math.inf
+    min_range: float = 0.0
 
     def __post_init__(self) -> None:
         positions = np.asarray(self.positions, dtype=np.float64).reshape(-1, 2)
@@ -193,7 +197,7 @@ def in_field_of_view(
     Parameters
     ----------
     scan : SensorScan
-        Provides ``origin``, ``boresight``, ``beamwidth`` and ``max_range``.
+        Provides ``origin``, ``boresight``, ``beamwidth``, ``max_range`` and ``min_range``.
     xy : ndarray, float64, shape (n, 2)
         World positions, m.
     margin : float
@@ -203,12 +207,14 @@ def in_field_of_view(
     Returns
     -------
     ndarray, bool, shape (n,)
-        ``|p - o| <= max_range + margin`` and
+        ``min_range <= |p - o| <= max_range + margin`` and
         ``|wrap(atan2(p - o) - boresight)| <= beamwidth / 2 + asin(min(1, margin / |p - o|))``.
     """
     d = xy - scan.origin
     r2 = np.einsum("ij,ij->i", d, d)
     inside = r2 <= (scan.max_range + margin) ** 2
+    if scan.min_range > 0.0:  # the blind zone: no margin, a point near it may be unseen
+        inside &= r2 >= scan.min_range**2
     if scan.beamwidth < 2.0 * math.pi:
         bearing = np.arctan2(d[:, 1], d[:, 0]) - scan.boresight
         off = np.abs((bearing + math.pi) % (2.0 * math.pi) - math.pi)

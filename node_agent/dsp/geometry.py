@@ -19,6 +19,13 @@ SPEED_OF_LIGHT = 299792458.0
 FloatArray = npt.NDArray[np.float64]
 
 
+#: Pulse widths at either end of an impulse response's window in which no echo is measured
+#: (:meth:`RadarParams.measurable`). 0 (off) by default: one pulse width removes the false
+#: bearings of echoes cut at a cropped window's start, but on the outside proxy recordings the
+#: tracker then lost more people near the sensors than it gained (docs/blind_zone.md).
+WINDOW_GUARD = 0.0
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RadarParams:
     """Sampling and band of one radar, as published in ``node_info.radar``.
@@ -65,6 +72,20 @@ class RadarParams:
     def pulse_range_width(self) -> float:
         """Range extent of one band-limited pulse, ``c / bandwidth`` in m (8.6 cm at 3.5 GHz)."""
         return SPEED_OF_LIGHT / self.bandwidth
+
+    def measurable(self, guard: float = WINDOW_GUARD) -> tuple[float, float]:
+        """Shortest and longest bistatic range (m) whose echo lies whole in the window.
+
+        ``guard`` pulse widths (:attr:`pulse_range_width`) in from each end of the window
+        :math:`[c t_0, c (t_0 + (n - 1) / f_s)]`: an echo nearer the window's edge is cut,
+        and its range estimate sticks to the edge. The node searches only this interval
+        (``NodeDspConfig.window_guard``) and the fusion centre takes the sensor as blind
+        outside it.
+        """
+        edge = guard * self.pulse_range_width
+        start = SPEED_OF_LIGHT * self.t0
+        end = SPEED_OF_LIGHT * (self.t0 + (self.n - 1) / self.fs)
+        return start + edge, end - edge
 
     def ranges(self) -> FloatArray:
         """Range axis of the impulse response.

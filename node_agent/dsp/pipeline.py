@@ -15,7 +15,7 @@ from .background import ExponentialBackgroundSubtractor
 from .band_filter import BandMatchedFilter
 from .cfar import GaussianCfarDetector
 from .ellipse import EllipseIntersector
-from .geometry import RadarParams, SensorGeometry
+from .geometry import WINDOW_GUARD, RadarParams, SensorGeometry
 from .range_phd import RangeGmPhdFilter
 
 FloatArray = npt.NDArray[np.float64]
@@ -44,6 +44,14 @@ class NodeDspConfig:
         residuals of the strong coupling live there.
     max_range : float or None
         Longest range processed, m; None processes the whole window. Shorter is faster.
+    window_guard : float
+        Ranges within this many pulse widths (``c / bandwidth``) of either end of the
+        impulse response's window are not searched (:meth:`RadarParams.measurable`). An
+        echo whose peak lies before the window start (a cropped window, ``t0 > 0``) or after
+        its end leaves only a flank inside it: the detection sits at the window edge
+        whatever the true range, on both receivers, and the ellipse intersection puts the
+        person on the boresight at half the window's start range. 0 (off) by default, see
+        ``WINDOW_GUARD``; with a guard, set ``FusionCoreConfig.blind_zone`` too.
     range_std : float
         Standard deviation of an estimated range, m (PHD measurement noise, and the
         position covariance).
@@ -102,6 +110,7 @@ class NodeDspConfig:
     pfa: float = 1e-3
     min_range_guard: float = 0.5
     max_range: float | None = None
+    window_guard: float = WINDOW_GUARD
     range_std: float = 0.05
     range_offset: float = 0.3
     pairing_margin: float = 0.15
@@ -221,7 +230,10 @@ class NodeDsp:
         if geometry.n_rx != self.n_rx:
             raise ValueError(f"geometry has {geometry.n_rx} receivers, expected {self.n_rx}")
         self._geometry = geometry
-        self._min_range = geometry.direct_ranges() + self.config.min_range_guard
+        # neither the coupling residuals after the direct path nor an echo cut at the
+        # window start
+        lo, _ = self.radar.measurable(self.config.window_guard)
+        self._min_range = np.maximum(geometry.direct_ranges() + self.config.min_range_guard, lo)
         if self._cfar is not None:
             self._cfar.set_min_range(self._min_range)
         if self.n_rx < 2:
@@ -270,6 +282,7 @@ class NodeDsp:
             ranges=self._window,
             pulse_width=self.radar.pulse_range_width,
             min_range=self._min_range,
+            max_range=self.radar.measurable(self.config.window_guard)[1],
             alpha=self.config.noise_alpha,
             complex_input=complex_input,
             censor=self.config.noise_censor,

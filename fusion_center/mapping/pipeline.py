@@ -143,6 +143,8 @@ class EchoSlamMapper:
         # acquisitions waiting for their groups to confirm: (t, odometry, pairs, ids)
         self._queue: deque[tuple[float, FloatArray | None, FloatArray, npt.NDArray]] = deque()
         self._last_t: float | None = None
+        # processed acquisitions whose output waits for a relocalisation: (t, pairs)
+        self._pending: list[tuple[float, int]] = []
         self.pairs_used = 0
         self.pairs_seen = 0
 
@@ -173,8 +175,9 @@ class EchoSlamMapper:
         for echoes in self.extractor.flush():
             out += self._pairs(pair_echoes(echoes, self.config.pair_gate))
         while self._queue:
-            out.append(self._filter(*self._queue.popleft()))
-        return out
+            out += self._filter(*self._queue.popleft())
+        self.filter.flush()
+        return out + self._release()
 
     def _pairs(self, z: FloatArray) -> list[MapperOutput]:
         t, odo = self._meta.popleft()
@@ -183,16 +186,16 @@ class EchoSlamMapper:
             self.grouper.reset()
         ids = self.grouper.step(z)
         if not self.measurement_space:
-            return [self._filter(t, odo, z, ids)]
+            return self._filter(t, odo, z, ids)
         self._queue.append((t, odo, z, ids))
         out = []
         while len(self._queue) > self.config.lag:
-            out.append(self._filter(*self._queue.popleft()))
+            out += self._filter(*self._queue.popleft())
         return out
 
     def _filter(
         self, t: float, odo: FloatArray | None, z: FloatArray, ids: npt.NDArray
-    ) -> MapperOutput:
+    ) -> list[MapperOutput]:
         f = self.filter
         if self._last_t is not None:
             f.predict(t - self._last_t, odo)
@@ -207,7 +210,23 @@ class EchoSlamMapper:
             live = {int(g) for q in self._queue for g in q[3]} | set(ids.tolist())
             f.forget_groups(live)
             self.grouper.hits = {g: n for g, n in self.grouper.hits.items() if g in live}
-        return MapperOutput(t=t, estimate=f.estimate(), pairs=int(z.shape[0]))
+        self._pending.append((t, int(z.shape[0])))
+        return self._release()
+
+    def _release(self) -> list[MapperOutput]:
+        """Outputs of the acquisitions the filter has processed: those it held back for a
+        relocalisation come out together, with the estimates of their replay."""
+        f = self.filter
+        out = [
+            MapperOutput(t=t, estimate=e, pairs=n)
+            for (t, n), e in zip(self._pending, f.revised, strict=False)
+        ]
+        del self._pending[: len(f.revised)]
+        f.revised.clear()
+        if not f.holding:
+            out += [MapperOutput(t=t, estimate=f.estimate(), pairs=n) for t, n in self._pending]
+            self._pending.clear()
+        return out
 
     def map(self, min_hits: int = 8) -> SlamMap:
         """The current map of the best particle (:func:`~fusion_center.mapping.features.build_map`

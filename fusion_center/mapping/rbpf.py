@@ -58,6 +58,7 @@ from fusion_center.mapping.models import (
     states_from_image,
     wall_tangent,
 )
+from fusion_center.mapping.relocalise import GridScanMatchRelocaliser, MatchMap, compose_poses
 
 FloatArray = npt.NDArray[np.float64]
 _LOG2PI = np.log(2 * np.pi)
@@ -129,6 +130,31 @@ class SlamConfig:
         Beyond the chapter.
     resample_threshold : float
         Resample when the effective sample size falls below this fraction of the particles.
+    relocalise_distance : float
+        Odometry translation of one step, m, after which the filter relocalises against its
+        map (:mod:`fusion_center.mapping.relocalise`): the pairs of the next
+        ``relocalise_acquisitions`` acquisitions are held back, scan-matched jointly over a
+        grid of poses around the odometry's prediction, the particles re-seeded from the
+        match's posterior (all carrying the heaviest particle's map), and the held-back
+        acquisitions replayed. ``inf`` turns it off. Beyond the chapter.
+    relocalise_spread : float
+        ... and leaves the particles' heading spread wider than this, rad (after short
+        drives the particles still associate well; a relocalisation ties all of them to the
+        heaviest particle's map and its errors: synthetic room, 1.5 m drives, 1-2 degrees
+        of spread, trajectory error 0.06 -> 0.14 m).
+    relocalise_reach : float
+        Landmarks farther than this from the predicted position are left out of the match, m.
+    relocalise_pairs : int
+        Echo pairs held back for the match (the acquisitions of the new stop are matched
+        jointly, their relative poses from the odometry of the turn)...
+    relocalise_acquisitions : int
+        ... or at most this many acquisitions.
+    relocalise_explained : float
+        Fraction of the held-back pairs the best match must explain (within about 2.4
+        ``range_sigma`` of a landmark's echo); a weaker match is not trusted (the new stop
+        may see too little of the map) and the particles carry on from the odometry.
+    relocalise_min_landmarks : int
+        Mature landmarks (see ``weight_hits``, ``weight_spread``) the map needs for it.
     seed : int
         Seed of the filter's random generator.
     """
@@ -159,6 +185,13 @@ class SlamConfig:
     likelihood_power: float = 1.0
     weight_spread: float = 0.3
     resample_threshold: float = 0.5
+    relocalise_distance: float = 1.0
+    relocalise_pairs: int = 240
+    relocalise_acquisitions: int = 119
+    relocalise_explained: float = 0.25
+    relocalise_spread: float = 0.0
+    relocalise_reach: float = 6.0
+    relocalise_min_landmarks: int = 4
     seed: int = 0
 
 
@@ -263,6 +296,18 @@ class RbpfSlam:
         self._shrink_at: int | None = None
         self.k = 0
         self.resamples = 0
+        self.relocalisations = 0
+        self.relocaliser = GridScanMatchRelocaliser(
+            ant, range_sigma=cfg.range_sigma, clutter_log_density=cfg.new_log_density, fov=cfg.fov
+        )
+        # calls held back after a long drive, and the particles' poses at its end
+        self._held: list[tuple] | None = None
+        self._held_start: tuple[FloatArray, FloatArray] | None = None
+        self._held_pairs = 0
+        self._held_spread = 0.0
+        # estimates of the held-back acquisitions after their replay (see holding)
+        self.revised: list[PoseEstimate2D] = []
+        self.relocalise_log: list[tuple[int, int, int, bool, float]] = []
 
     # --- geometry -----------------------------------------------------------------------------
 
@@ -288,6 +333,32 @@ class RbpfSlam:
             (m, m, rad). Without it the robot keeps its estimated speed and heading with a
             heading random walk.
         """
+        cfg = self.config
+        if (
+            self._held is not None
+            and odometry is not None
+            and np.hypot(*np.asarray(odometry, float)[:2]) > cfg.expand_distance
+        ):
+            self._relocalise()  # the robot drove on before the match had its pairs
+        if self._held is not None:
+            # the particles keep moving so that estimate() stays the odometry's prediction
+            self._held.append(("p", dt, odometry))
+            self._move(dt, odometry)
+            return
+        self._move(dt, odometry)
+        if (
+            odometry is not None
+            and np.hypot(*np.asarray(odometry, float)[:2]) > cfg.relocalise_distance
+            and self._heading_spread() > cfg.relocalise_spread
+            and self._mature(int(np.argmax(self.logw))).size >= cfg.relocalise_min_landmarks
+        ):
+            self._held = []
+            self._held_pairs = 0
+            self._held_spread = self._heading_spread()
+            self._held_start = (self.pose.copy(), self.speed.copy())
+
+    def _move(self, dt: float, odometry: npt.ArrayLike | None) -> None:
+        """The motion model of :meth:`predict` (with the particle expansion)."""
         cfg = self.config
         p = self.pose.shape[0]
         if (
@@ -402,6 +473,15 @@ class RbpfSlam:
             Echo-group ids (measurement-space association); ignored in state-space mode.
         """
         z = np.atleast_2d(np.asarray(z, float)).reshape(-1, 2)
+        if self._held is not None:
+            self._held.append(("u", z, groups))
+            self._held_pairs += z.shape[0]
+            if (
+                self._held_pairs >= self.config.relocalise_pairs
+                or sum(c[0] == "u" for c in self._held) >= self.config.relocalise_acquisitions
+            ):
+                self._relocalise()
+            return
         use_groups = self.config.association == "measurement" and groups is not None
         gids = np.asarray(groups, np.int64) if use_groups else None
         tx, rx, yaw = self._array_world()
@@ -575,6 +655,106 @@ class RbpfSlam:
         lm.t_min[rows, idx] = np.minimum(lm.t_min[rows, idx], tw)
         lm.t_max[rows, idx] = np.maximum(lm.t_max[rows, idx], tw)
 
+    # --- relocalisation after long drives -----------------------------------------------------
+
+    def _mature(self, b: int) -> npt.NDArray[np.intp]:
+        """Landmarks of particle ``b`` that may weigh the particles (see ``weight_hits``)."""
+        cfg = self.config
+        lm = self.lm
+        ok = lm.active[b] & (lm.hits[b] >= cfg.weight_hits) & (lm.spread[b] >= cfg.weight_spread)
+        return np.flatnonzero(ok)
+
+    def _heading_spread(self) -> float:
+        """Weighted standard deviation of the particles' heading, rad."""
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
+        z = w @ np.exp(1j * self.pose[:, 2])
+        return float(np.sqrt(max(-2.0 * np.log(max(abs(z), 1e-12)), 0.0)))
+
+    def _match_map(self, b: int) -> MatchMap:
+        """Mature landmarks of particle ``b``, every kind hypothesis with its posterior."""
+        lm = self.lm
+        idx = self._mature(b)
+        acc = lm.loglik[b, idx]
+        logp = acc - _logsumexp(acc, -1)[:, None]  # (L, 3)
+        # hypotheses below 20 % and landmarks out of echo range (the extractor's 10 m of
+        # bistatic range, plus the search window) cost time and explain nothing
+        li, kind = np.nonzero(logp > np.log(0.2))
+        state = lm.mean[b, idx[li], kind]
+        c = self.pose[b, :2]
+        n = np.stack([np.cos(state[:, 0]), np.sin(state[:, 0])], -1)
+        dist = np.where(
+            kind == WALL,
+            np.abs(state[:, 1] - n @ c),
+            np.linalg.norm(state - c, axis=-1),
+        )
+        near = dist < self.config.relocalise_reach
+        return MatchMap(kind=kind[near], state=state[near], log_weight=logp[li, kind][near])
+
+    @property
+    def holding(self) -> bool:
+        """True while acquisitions are held back for a relocalisation: :meth:`estimate` is
+        then the odometry's prediction, and once they are replayed :attr:`revised` holds their
+        estimates (the caller takes them out)."""
+        return self._held is not None
+
+    def flush(self) -> None:
+        """Process acquisitions still held back for a relocalisation (end of the stream)."""
+        if self._held is not None:
+            self._relocalise()
+
+    def _relocalise(self) -> None:
+        """Scan-match the held-back acquisitions against the heaviest particle's map, re-seed
+        the particles from the match's posterior and replay the acquisitions."""
+        cfg = self.config
+        calls, self._held = self._held or [], None
+        assert self._held_start is not None
+        self.pose, self.speed = self._held_start
+        cur = np.zeros((1, 3))
+        rel, pairs = [], []
+        for c in calls:
+            if c[0] == "u":
+                rel.append(cur[0].copy())
+                pairs.append(c[1])
+            elif c[0] == "p" and c[2] is not None:
+                cur = compose_poses(cur, np.asarray(c[2], float))
+        b = int(np.argmax(self.logw))
+        lmap = self._match_map(b)
+        n_pairs = sum(z.shape[0] for z in pairs)
+        if n_pairs:
+            w = np.exp(self.logw - self.logw.max())
+            w /= w.sum()
+            d = self.pose - self.pose[b]
+            d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
+            d -= w @ d
+            cov = (w[:, None] * d).T @ d
+            kw = {"bias": float(self.bias[b]), "mount": float(self.mount[b])}
+            relp = np.array(rel)
+            cand, logp = self.relocaliser.search(self.pose[b], cov, relp, pairs, lmap, **kw)
+            best = cand[np.argmax(logp)]
+            explained = self.relocaliser.explained(best, relp, pairs, lmap, **kw)
+            ok = explained >= cfg.relocalise_explained * n_pairs
+            self.relocalise_log.append((self.k, n_pairs, explained, ok, self._held_spread))
+            if ok:
+                n = cfg.n_particles
+                self._take(np.full(n, b))
+                self._shrink_at = None
+                prob = np.exp(logp - logp.max())
+                pick = self.rng.choice(cand.shape[0], n, p=prob / prob.sum())
+                fs, fy = self.relocaliser.fine_step
+                jitter = self.rng.uniform(-0.5, 0.5, (n, 3)) * np.array([fs, fs, fy])
+                self.pose = cand[pick] + jitter
+                self.logw = np.full(n, -np.log(n))
+                self.relocalisations += 1
+        for c in calls:
+            if c[0] == "p":
+                self._move(c[1], c[2])
+            elif c[0] == "u":
+                self.update(c[1], c[2])
+                self.revised.append(self.estimate())
+            else:
+                self.forget_groups(c[1])
+
     # --- bookkeeping --------------------------------------------------------------------------
 
     def _prune(self) -> None:
@@ -604,6 +784,9 @@ class RbpfSlam:
 
     def forget_groups(self, keep: set[int]) -> None:
         """Drop the associations of echo groups that ended (all but ``keep``)."""
+        if self._held is not None:
+            self._held.append(("f", set(keep)))
+            return
         self._groups = {g: c for g, c in self._groups.items() if g in keep}
 
     # --- outputs ------------------------------------------------------------------------------

@@ -360,6 +360,8 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 duration=args.duration,
                 workers=args.workers,
                 nodes_per_process=args.nodes_per_process,
+                threads=args.threads,
+                spread_slots=not args.adjacent_slots,
                 seed=args.seed,
                 out=args.out,
             )
@@ -918,6 +920,17 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--duration", type=_positive, default=10.0, help="measured seconds")
     sc.add_argument("--workers", type=_count, default=1, help="fusion cell workers (1: one center)")
     sc.add_argument("--nodes-per-process", type=_count, default=4, help="nodes per process")
+    sc.add_argument(
+        "--threads",
+        choices=("process", "agent"),
+        default="process",
+        help="one acquisition thread per node process (default) or per node agent",
+    )
+    sc.add_argument(
+        "--adjacent-slots",
+        action="store_true",
+        help="a node process's nodes in adjacent TDMA slots (default: spread over the frame)",
+    )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")
     sc.add_argument("--json", action="store_true", help="print only the JSON line")

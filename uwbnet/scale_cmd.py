@@ -59,6 +59,11 @@ class ScaleConfig:
     # 4: eight node agents in one process missed slots on the GIL (1.8 % drops at 12 nodes,
     # none with four per process; docs/capacity.md).
     nodes_per_process: int = 4
+    # "process": the agents of a node process share one acquisition thread, in slot order
+    # (node_agent.group); "agent": every agent has its own worker and publisher threads.
+    threads: str = "process"
+    # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
+    spread_slots: bool = True
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -159,8 +164,13 @@ def _plan(cfg: ScaleConfig) -> list[tuple[str, str, dict[str, Any]]]:
     ids = [n.id for n in scenario.nodes]
     plan = []
     per = max(1, cfg.nodes_per_process)
-    for g, start in enumerate(range(0, len(ids), per)):
-        plan.append((f"nodes{g}", "nodes", {"ids": ids[start : start + per]}))
+    n_proc = math.ceil(len(ids) / per)
+    for g in range(n_proc):
+        # The schedule gives the nodes slots in id order. Consecutive ids in one process put
+        # its K acquisitions into K adjacent slots (20 ms / N apart), which one thread cannot
+        # serve on time; every n_proc-th id spreads them over the frame (20 ms / K apart).
+        group = ids[g::n_proc] if cfg.spread_slots else ids[g * per : (g + 1) * per]
+        plan.append((f"nodes{g}", "nodes", {"ids": group, "threads": cfg.threads}))
     if cfg.workers > 1:
         xy = {n.id: n.pose[:2] for n in scenario.nodes}
         for k, ids_k in enumerate(nodes_of_cells(cells(dataclasses.asdict(cfg)), xy, CELL_MARGIN)):
@@ -231,6 +241,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
 
     if cfg.nodes < 1 or cfg.people < 0 or cfg.hosts < 1 or cfg.workers < 1:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
+    if cfg.threads not in ("process", "agent"):
+        raise ScaleError(f"--threads must be process or agent, not {cfg.threads!r}")
     netns = None
     if cfg.hosts > 1:
         reason = NetnsHosts.why_not()

@@ -149,6 +149,7 @@ def _write_tracks(path: Path, received: list[tuple[float, bytes]]) -> None:
 def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
     """Simulated nodes ``cfg["ids"]`` with their node agents (raw ``ir`` off)."""
     from node_agent.agent import AgentConfig, NodeAgent
+    from node_agent.group import SlotOrderGroup
     from sim_nodes.driver import SimulatedDriver
     from sim_nodes.network import SimNetwork
     from uwbnet.processes import fetch_epoch
@@ -159,13 +160,22 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
         epoch = fetch_epoch(session, cfg["net"], stop)
         if epoch is None:
             return
+        agents = []
         for node in cfg["ids"]:
             driver = stack.enter_context(SimulatedDriver(network, node, start=epoch))
-            agent = NodeAgent(
-                session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False)
+            agents.append(
+                NodeAgent(session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False))
             )
-            agent.start()
-            stack.callback(agent.stop)
+        if cfg.get("threads", "process") == "process":
+            # one acquisition thread serves the agents in slot order (no GIL hand-offs
+            # between K workers whose slots follow each other)
+            group = SlotOrderGroup(agents)
+            group.start()
+            stack.callback(group.stop)
+        else:
+            for agent in agents:
+                agent.start()
+                stack.callback(agent.stop)
         _ready(f"nodes {len(cfg['ids'])}")
         while not stop.wait(0.2):
             pass

@@ -139,3 +139,19 @@ def test_group_serves_the_earliest_slot_first_and_never_early():
     assert [slot for _, slot, _ in served] == sorted(slot for _, slot, _ in served)
     assert [name for _, _, name in served] == ["b", "a", "c", "b", "a", "c"]
     assert all(when >= slot for when, slot, _ in served)
+
+
+def test_scale_spreads_a_node_process_over_the_frame():
+    from uwbnet.scale_cmd import ScaleConfig, _plan
+
+    def groups(**kw):  # type: ignore[no-untyped-def]
+        plan = _plan(ScaleConfig(nodes=20, people=2, **kw))
+        return [cfg["ids"] for _, role, cfg in plan if role == "nodes"]
+
+    spread, adjacent = groups(), groups(spread_slots=False)
+    ids = sorted(i for g in spread for i in g)
+    assert ids == sorted(i for g in adjacent for i in g) and len(ids) == 20 == len(set(ids))
+    # slots go in id order: a process's four nodes are five slots (5 ms) apart, not adjacent
+    assert spread == [ids[g::5] for g in range(5)]
+    assert adjacent == [ids[4 * g : 4 * g + 4] for g in range(5)]
+    assert all(cfg["threads"] == "process" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))

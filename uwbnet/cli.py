@@ -361,7 +361,7 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 workers=args.workers,
                 nodes_per_process=args.nodes_per_process,
                 threads=args.threads,
-                spread_slots=not args.adjacent_slots,
+                spread_slots=args.spread_slots,
                 seed=args.seed,
                 out=args.out,
             )
@@ -923,13 +923,13 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument(
         "--threads",
         choices=("process", "agent"),
-        default="process",
-        help="one acquisition thread per node process (default) or per node agent",
+        default="agent",
+        help="one acquisition thread per node agent (default) or per node process",
     )
     sc.add_argument(
-        "--adjacent-slots",
+        "--spread-slots",
         action="store_true",
-        help="a node process's nodes in adjacent TDMA slots (default: spread over the frame)",
+        help="a node process's nodes spread over the frame (default: adjacent TDMA slots)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

@@ -59,11 +59,13 @@ class ScaleConfig:
     # 4: eight node agents in one process missed slots on the GIL (1.8 % drops at 12 nodes,
     # none with four per process; docs/capacity.md).
     nodes_per_process: int = 4
-    # "process": the agents of a node process share one acquisition thread, in slot order
-    # (node_agent.group); "agent": every agent has its own worker and publisher threads.
-    threads: str = "process"
+    # "agent": every agent has its own worker and publisher threads; "process": the agents of
+    # a node process share one acquisition thread, in slot order (node_agent.group). Measured
+    # at load 8-9 (docs/capacity.md, stop 17): "process" lost 2-14x more acquisitions and
+    # saved no CPU, so "agent" stays the default.
+    threads: str = "agent"
     # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
-    spread_slots: bool = True
+    spread_slots: bool = False
     seed: int = 1
     net: str = "scale"
     out: str | None = None

@@ -148,10 +148,10 @@ def test_scale_spreads_a_node_process_over_the_frame():
         plan = _plan(ScaleConfig(nodes=20, people=2, **kw))
         return [cfg["ids"] for _, role, cfg in plan if role == "nodes"]
 
-    spread, adjacent = groups(), groups(spread_slots=False)
+    spread, adjacent = groups(spread_slots=True), groups()
     ids = sorted(i for g in spread for i in g)
     assert ids == sorted(i for g in adjacent for i in g) and len(ids) == 20 == len(set(ids))
     # slots go in id order: a process's four nodes are five slots (5 ms) apart, not adjacent
     assert spread == [ids[g::5] for g in range(5)]
     assert adjacent == [ids[4 * g : 4 * g + 4] for g in range(5)]
-    assert all(cfg["threads"] == "process" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))
+    assert all(cfg["threads"] == "agent" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))

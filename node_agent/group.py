@@ -8,6 +8,11 @@ per-agent steps (:meth:`NodeAgent.next_slot`, :meth:`NodeAgent.serve`) on one th
 waits for the earliest pending slot of its agents and serves them in slot order, and one
 publisher thread for all their messages. The messages, counters and status of every agent are
 the same as with the agents' own threads.
+
+Measured in ``uwbnet scale --threads process`` on a 2-core machine shared with other work
+(docs/capacity.md, stop 17, item 17): it saved no CPU beyond the noise and lost more
+acquisitions than a thread per agent, because one late acquisition delays every later slot of
+the process. It is kept as an option for such measurements; the default is a thread per agent.
 """
 
 from __future__ import annotations

@@ -362,6 +362,7 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 nodes_per_process=args.nodes_per_process,
                 threads=args.threads,
                 spread_slots=args.spread_slots,
+                rt_priority=args.rt_priority,
                 seed=args.seed,
                 out=args.out,
             )
@@ -930,6 +931,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--spread-slots",
         action="store_true",
         help="a node process's nodes spread over the frame (default: adjacent TDMA slots)",
+    )
+    sc.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        metavar="P",
+        help="run every process SCHED_FIFO at priority P (1-99, root; default 0: off)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

@@ -66,6 +66,8 @@ class ScaleConfig:
     threads: str = "agent"
     # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
     spread_slots: bool = False
+    # SCHED_FIFO priority of every scale process (0: the normal scheduler); root only
+    rt_priority: int = 0
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -189,7 +191,9 @@ def _spawn(
     env.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     err = open(log_dir / f"{name}.err", "w", encoding="utf-8")
     popen = subprocess.Popen(
-        [*prefix, sys.executable, "-m", "uwbnet.scale_roles", role, json.dumps(role_cfg)],
+        # -P: not the working directory first on sys.path (run from another checkout, the
+        # processes imported that checkout's uwbnet, not this one's)
+        [*prefix, sys.executable, "-P", "-m", "uwbnet.scale_roles", role, json.dumps(role_cfg)],
         stdout=subprocess.PIPE,
         stderr=err,
         text=True,
@@ -245,6 +249,10 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
     if cfg.threads not in ("process", "agent"):
         raise ScaleError(f"--threads must be process or agent, not {cfg.threads!r}")
+    if not 0 <= cfg.rt_priority <= 99:
+        raise ScaleError("--rt-priority must be 0 (off) to 99")
+    if cfg.rt_priority and os.geteuid() != 0:
+        raise ScaleError("--rt-priority needs root (SCHED_FIFO)")
     netns = None
     if cfg.hosts > 1:
         reason = NetnsHosts.why_not()
@@ -260,6 +268,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "people": cfg.people,
         "seed": cfg.seed,
         "workers": cfg.workers,
+        "rt_priority": cfg.rt_priority,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -218,6 +219,11 @@ def main(argv: list[str]) -> int:
         level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     role, cfg = argv[0], json.loads(argv[1])
+    if cfg.get("rt_priority"):
+        # Before any thread exists, so that zenoh's and ours inherit it: on a machine shared
+        # with other work the TDMA slots otherwise wait 10-30 ms behind other processes' time
+        # slices (docs/capacity.md, stop 17).
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(cfg["rt_priority"]))
     with stop_on_signals() as stop:
         ROLES[role](cfg, stop)
     return 0

@@ -155,3 +155,10 @@ def test_scale_spreads_a_node_process_over_the_frame():
     assert spread == [ids[g::5] for g in range(5)]
     assert adjacent == [ids[4 * g : 4 * g + 4] for g in range(5)]
     assert all(cfg["threads"] == "agent" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))
+
+
+def test_scale_rejects_a_bad_rt_priority_with_one_line():
+    from tests.cli import assert_one_line_error, uwbnet
+
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--rt-priority", "100"), "--rt-priority")
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--threads", "x"), "--threads")

@@ -7,6 +7,7 @@ and undeclared by :meth:`NodeAgent.stop`. Callbacks only enqueue (zenoh's rule).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import logging
 import threading
@@ -24,6 +25,11 @@ from protocol import Ir, NodeInfo, ProtocolError, Status, TdmaSchedule, keys
 from protocol.transport import FifoChannel, RingChannel, stop_worker
 
 log = logging.getLogger(__name__)
+
+#: Upper edges (ms) of the bins of the acquisition lateness histogram in ``status.extra``
+#: (``lateness_ms``: counts per bin, the last bin open-ended): how long after its slot start an
+#: acquisition began. More than a frame late means the next slot is skipped.
+LATENESS_EDGES_MS = (1.0, 2.0, 5.0, 10.0, 20.0, 40.0)
 
 
 @dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
@@ -102,6 +108,7 @@ class NodeAgent:
         # CPU time (s) of this agent's acquisitions, and (cpu, monotonic) at the last status
         self._cpu_used = 0.0
         self._status_mark = (0.0, 0.0)
+        self._lateness = [0] * (len(LATENESS_EDGES_MS) + 1)
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -233,8 +240,10 @@ class NodeAgent:
             # The worker fell behind: these frames' slots passed without an acquisition.
             self.counters["dropped"] += slot.frame - self._last_frame - 1
         self._last_frame = slot.frame
-        if self.clock() - slot.t > slot.duration:
+        late = self.clock() - slot.t
+        if late > slot.duration:
             self.counters["late_slots"] += 1
+        self._lateness[bisect.bisect_left(LATENESS_EDGES_MS, late * 1e3)] += 1
         cpu0 = time.thread_time()
         self._acquire_and_publish(slot)
         self._cpu_used += time.thread_time() - cpu0
@@ -304,6 +313,8 @@ class NodeAgent:
                 "driver_errors": c["driver_errors"],
                 "queue_dropped": self._outbox.dropped,
                 "missed_frames": c["dropped"],
+                "lateness_ms": list(self._lateness),
+                "lateness_edges_ms": list(LATENESS_EDGES_MS),
             },
         )
         self._pub_status.put(status.to_wire())

@@ -89,11 +89,17 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
     # last frame may be incomplete, and a loaded machine may make the thread skip a slot.
     last = sorted({d.frame for d in steady})[-31:-1]
     complete = [sorted(d.src for d in steady if d.frame == f) == nodes for f in last]
-    assert sum(complete) >= 27, complete
+    assert sum(complete) >= 20, complete  # a node never served: 0
     for agent in agents:
         assert agent.counters["dsp_errors"] == 0 and agent.counters["driver_errors"] == 0
     assert set(status) == set(nodes)
     assert all(s.acquired > 0 and 0.0 < s.cpu < 1.0 for s in status.values())
+    # the lateness histogram counts every acquisition up to the status (the last status may
+    # come before the group's last acquisitions)
+    for agent in agents:
+        s = status[agent.config.node]
+        assert len(s.extra["lateness_ms"]) == len(s.extra["lateness_edges_ms"]) + 1
+        assert sum(s.extra["lateness_ms"]) == s.acquired
 
 
 class _FakeAgent:

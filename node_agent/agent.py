@@ -7,6 +7,7 @@ and undeclared by :meth:`NodeAgent.stop`. Callbacks only enqueue (zenoh's rule).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import logging
 import threading
@@ -19,11 +20,16 @@ import zenoh
 from node_agent.core import NodeConfigError, NodeCore, detections_message
 from node_agent.drivers.base import DriverError, RadarDriver
 from node_agent.dsp.pipeline import NodeDspConfig
-from node_agent.tdma import next_slot
+from node_agent.tdma import SlotTiming, next_slot
 from protocol import Ir, NodeInfo, ProtocolError, Status, TdmaSchedule, keys
 from protocol.transport import FifoChannel, RingChannel, stop_worker
 
 log = logging.getLogger(__name__)
+
+#: Upper edges (ms) of the bins of the acquisition lateness histogram in ``status.extra``
+#: (``lateness_ms``: counts per bin, the last bin open-ended): how long after its slot start an
+#: acquisition began. More than a frame late means the next slot is skipped.
+LATENESS_EDGES_MS = (1.0, 2.0, 5.0, 10.0, 20.0, 40.0)
 
 
 @dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
@@ -94,13 +100,27 @@ class NodeAgent:
             "driver_errors": 0,
         }
         self._started_at = 0.0
+        self._started = False
+        # slot state of the worker (NodeAgent._run or a SlotOrderGroup's thread)
+        self._pending: SlotTiming | None = None
+        self._last_frame: int | None = None
+        self._last_query = 0.0
+        # CPU time (s) of this agent's acquisitions, and (cpu, monotonic) at the last status
+        self._cpu_used = 0.0
+        self._status_mark = (0.0, 0.0)
+        self._lateness = [0] * (len(LATENESS_EDGES_MS) + 1)
 
     # -- lifecycle -------------------------------------------------------------------------
 
-    def start(self) -> None:
-        """Declare publishers, queryable, subscriber and token, and start the worker."""
-        if self._thread is not None:
+    def start(self, *, threads: bool = True) -> None:
+        """Declare publishers, queryable, subscriber and token, and start the worker.
+
+        With ``threads=False`` the agent only declares: an :class:`node_agent.group.SlotOrderGroup`
+        runs its acquisitions and publishing on the group's threads.
+        """
+        if self._started:
             return
+        self._started = True
         net, node = self.config.net, self.config.node
         s = self.session
         self._pub_ir = s.declare_publisher(
@@ -121,12 +141,14 @@ class NodeAgent:
         self._decl.append(s.liveliness().declare_token(keys.alive_key(net, node)))
         s.put(info_key, self._info_bytes)
         self._started_at = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name=f"agent-{node}", daemon=True)
-        self._pub_thread = threading.Thread(
-            target=self._publish_loop, name=f"agent-{node}-pub", daemon=True
-        )
-        self._pub_thread.start()
-        self._thread.start()
+        self._status_mark = (self._cpu_used, self._started_at)
+        if threads:
+            self._thread = threading.Thread(target=self._run, name=f"agent-{node}", daemon=True)
+            self._pub_thread = threading.Thread(
+                target=self._publish_loop, name=f"agent-{node}-pub", daemon=True
+            )
+            self._pub_thread.start()
+            self._thread.start()
         log.info("node agent %s started on net %s (tx %s)", node, net, self.tx)
 
     def stop(self) -> None:
@@ -141,15 +163,27 @@ class NodeAgent:
     def _publish_loop(self) -> None:
         while not self._stop.is_set():
             item = self._outbox.get(timeout=0.1)
+            if item is not None:
+                self._put(*item)
+
+    def publish_pending(self, limit: int | None = None) -> None:
+        """Publish the oldest ``limit`` queued messages (all if None) now, without waiting
+        (the publisher thread of a :class:`node_agent.group.SlotOrderGroup`)."""
+        n = 0
+        while limit is None or n < limit:
+            item = self._outbox.get(timeout=0.0)
             if item is None:
-                continue
-            publisher, payload = item
-            try:
-                publisher.put(payload)
-            except zenoh.ZError as exc:
-                log.debug("publish failed: %s", exc)
-                continue
-            self.counters["published"] += 1
+                return
+            self._put(*item)
+            n += 1
+
+    def _put(self, publisher: Any, payload: bytes) -> None:
+        try:
+            publisher.put(payload)
+        except zenoh.ZError as exc:
+            log.debug("publish failed: %s", exc)
+            return
+        self.counters["published"] += 1
 
     def _on_info_query(self, query: zenoh.Query) -> None:
         # Reply on our own concrete key, not on the query's wildcard.
@@ -157,7 +191,9 @@ class NodeAgent:
 
     # -- worker ----------------------------------------------------------------------------
 
-    def _take_schedule(self) -> None:
+    def _take_schedule(self) -> bool:
+        """Take the schedules received; True if one was taken."""
+        taken = False
         for payload in self._schedule_in.drain():
             try:
                 sched = TdmaSchedule.from_wire(payload)
@@ -166,52 +202,70 @@ class NodeAgent:
                 log.warning("node %s: rejected schedule: %s", self.config.node, exc)
                 continue
             self._schedule = sched
+            taken = True
+        return taken
 
     def _query_schedule(self) -> None:
+        # The replies arrive on zenoh's thread and only enqueue: the asking thread (which may
+        # serve other agents' slots, node_agent.group) never waits for the network.
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None:
+                self._schedule_in.put(reply.ok.payload.to_bytes())
+
         try:
-            for reply in self.session.get(keys.schedule_key(self.config.net), timeout=1.0):
-                if reply.ok is not None:
-                    self._schedule_in.put(reply.ok.payload.to_bytes())
+            self.session.get(keys.schedule_key(self.config.net), handler=on_reply, timeout=1.0)
         except zenoh.ZError as exc:
             log.debug("schedule query failed: %s", exc)
 
+    def next_slot(self) -> SlotTiming | None:
+        """This node's next TDMA slot (the one still to be served), or None when there is no
+        schedule or we are not (yet) in it; then the schedule is queried (1 Hz): the update
+        that adds us may have been published before our subscriber was matched."""
+        if self._take_schedule():
+            self._pending = None
+        if self._pending is None and self._schedule is not None and self.tx is not None:
+            self._pending = next_slot(self._schedule, self.tx, self.clock())
+        if self._pending is None and time.monotonic() - self._last_query > 1.0:
+            self._last_query = time.monotonic()
+            self._query_schedule()
+        return self._pending
+
+    def serve(self, slot: SlotTiming) -> int:
+        """Acquire, process and queue the messages of ``slot`` (its start has come), and send
+        ``status`` when due. Called from one thread at a time. Returns the number of messages
+        queued for publishing."""
+        self._pending = None
+        queued = self._outbox.received
+        if self._last_frame is not None and slot.frame > self._last_frame + 1:
+            # The worker fell behind: these frames' slots passed without an acquisition.
+            self.counters["dropped"] += slot.frame - self._last_frame - 1
+        self._last_frame = slot.frame
+        late = self.clock() - slot.t
+        if late > slot.duration:
+            self.counters["late_slots"] += 1
+        self._lateness[bisect.bisect_left(LATENESS_EDGES_MS, late * 1e3)] += 1
+        cpu0 = time.thread_time()
+        self._acquire_and_publish(slot)
+        self._cpu_used += time.thread_time() - cpu0
+        now = time.monotonic()
+        if now - self._status_mark[1] >= self.config.status_period:
+            cpu = (self._cpu_used - self._status_mark[0]) / max(now - self._status_mark[1], 1e-9)
+            self._status_mark = (self._cpu_used, now)
+            self._publish_status(cpu)
+        return self._outbox.received - queued
+
     def _run(self) -> None:
-        last_status = time.monotonic()
-        cpu_mark = (time.thread_time(), time.monotonic())
-        last_query = 0.0
-        last_frame: int | None = None
         while not self._stop.is_set():
-            self._take_schedule()
-            slot = None
-            if self._schedule is not None and self.tx is not None:
-                slot = next_slot(self._schedule, self.tx, self.clock())
+            slot = self.next_slot()
             if slot is None:
-                # No schedule, or not (yet) in it: the update that adds us may have been
-                # published before our subscriber was matched, so ask the queryable (1 Hz).
-                if time.monotonic() - last_query > 1.0:
-                    last_query = time.monotonic()
-                    self._query_schedule()
-                else:
-                    self._stop.wait(0.05)
+                self._stop.wait(0.05)
                 continue
-            if last_frame is not None and slot.frame > last_frame + 1:
-                # The worker fell behind: these frames' slots passed without an acquisition.
-                self.counters["dropped"] += slot.frame - last_frame - 1
-            last_frame = slot.frame
             wait = slot.t - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 break
-            if self.clock() - slot.t > slot.duration:
-                self.counters["late_slots"] += 1
-            self._acquire_and_publish(slot)
-            now = time.monotonic()
-            if now - last_status >= self.config.status_period:
-                cpu = (time.thread_time() - cpu_mark[0]) / max(now - cpu_mark[1], 1e-9)
-                cpu_mark = (time.thread_time(), now)
-                last_status = now
-                self._publish_status(cpu)
+            self.serve(slot)
 
-    def _acquire_and_publish(self, slot: Any) -> None:
+    def _acquire_and_publish(self, slot: SlotTiming) -> None:
         try:
             acq = self.driver.acquire(slot)
         except DriverError as exc:
@@ -259,6 +313,8 @@ class NodeAgent:
                 "driver_errors": c["driver_errors"],
                 "queue_dropped": self._outbox.dropped,
                 "missed_frames": c["dropped"],
+                "lateness_ms": list(self._lateness),
+                "lateness_edges_ms": list(LATENESS_EDGES_MS),
             },
         )
         self._pub_status.put(status.to_wire())

@@ -360,6 +360,9 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 duration=args.duration,
                 workers=args.workers,
                 nodes_per_process=args.nodes_per_process,
+                threads=args.threads,
+                spread_slots=args.spread_slots,
+                rt_priority=args.rt_priority,
                 seed=args.seed,
                 out=args.out,
             )
@@ -918,6 +921,24 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--duration", type=_positive, default=10.0, help="measured seconds")
     sc.add_argument("--workers", type=_count, default=1, help="fusion cell workers (1: one center)")
     sc.add_argument("--nodes-per-process", type=_count, default=4, help="nodes per process")
+    sc.add_argument(
+        "--threads",
+        choices=("process", "agent"),
+        default="agent",
+        help="one acquisition thread per node agent (default) or per node process",
+    )
+    sc.add_argument(
+        "--spread-slots",
+        action="store_true",
+        help="a node process's nodes spread over the frame (default: adjacent TDMA slots)",
+    )
+    sc.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        metavar="P",
+        help="run every process SCHED_FIFO at priority P (1-99, root; default 0: off)",
+    )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")
     sc.add_argument("--json", action="store_true", help="print only the JSON line")

@@ -59,6 +59,15 @@ class ScaleConfig:
     # 4: eight node agents in one process missed slots on the GIL (1.8 % drops at 12 nodes,
     # none with four per process; docs/capacity.md).
     nodes_per_process: int = 4
+    # "agent": every agent has its own worker and publisher threads; "process": the agents of
+    # a node process share one acquisition thread, in slot order (node_agent.group). Measured
+    # at load 8-9 (docs/capacity.md, stop 17): "process" lost 2-14x more acquisitions and
+    # saved no CPU, so "agent" stays the default.
+    threads: str = "agent"
+    # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
+    spread_slots: bool = False
+    # SCHED_FIFO priority of every scale process (0: the normal scheduler); root only
+    rt_priority: int = 0
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -159,8 +168,13 @@ def _plan(cfg: ScaleConfig) -> list[tuple[str, str, dict[str, Any]]]:
     ids = [n.id for n in scenario.nodes]
     plan = []
     per = max(1, cfg.nodes_per_process)
-    for g, start in enumerate(range(0, len(ids), per)):
-        plan.append((f"nodes{g}", "nodes", {"ids": ids[start : start + per]}))
+    n_proc = math.ceil(len(ids) / per)
+    for g in range(n_proc):
+        # The schedule gives the nodes slots in id order. Consecutive ids in one process put
+        # its K acquisitions into K adjacent slots (20 ms / N apart), which one thread cannot
+        # serve on time; every n_proc-th id spreads them over the frame (20 ms / K apart).
+        group = ids[g::n_proc] if cfg.spread_slots else ids[g * per : (g + 1) * per]
+        plan.append((f"nodes{g}", "nodes", {"ids": group, "threads": cfg.threads}))
     if cfg.workers > 1:
         xy = {n.id: n.pose[:2] for n in scenario.nodes}
         for k, ids_k in enumerate(nodes_of_cells(cells(dataclasses.asdict(cfg)), xy, CELL_MARGIN)):
@@ -177,7 +191,9 @@ def _spawn(
     env.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     err = open(log_dir / f"{name}.err", "w", encoding="utf-8")
     popen = subprocess.Popen(
-        [*prefix, sys.executable, "-m", "uwbnet.scale_roles", role, json.dumps(role_cfg)],
+        # -P: not the working directory first on sys.path (run from another checkout, the
+        # processes imported that checkout's uwbnet, not this one's)
+        [*prefix, sys.executable, "-P", "-m", "uwbnet.scale_roles", role, json.dumps(role_cfg)],
         stdout=subprocess.PIPE,
         stderr=err,
         text=True,
@@ -231,6 +247,12 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
 
     if cfg.nodes < 1 or cfg.people < 0 or cfg.hosts < 1 or cfg.workers < 1:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
+    if cfg.threads not in ("process", "agent"):
+        raise ScaleError(f"--threads must be process or agent, not {cfg.threads!r}")
+    if not 0 <= cfg.rt_priority <= 99:
+        raise ScaleError("--rt-priority must be 0 (off) to 99")
+    if cfg.rt_priority and os.geteuid() != 0:
+        raise ScaleError("--rt-priority needs root (SCHED_FIFO)")
     netns = None
     if cfg.hosts > 1:
         reason = NetnsHosts.why_not()
@@ -246,6 +268,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "people": cfg.people,
         "seed": cfg.seed,
         "workers": cfg.workers,
+        "rt_priority": cfg.rt_priority,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

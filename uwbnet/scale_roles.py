@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -149,6 +150,7 @@ def _write_tracks(path: Path, received: list[tuple[float, bytes]]) -> None:
 def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
     """Simulated nodes ``cfg["ids"]`` with their node agents (raw ``ir`` off)."""
     from node_agent.agent import AgentConfig, NodeAgent
+    from node_agent.group import SlotOrderGroup
     from sim_nodes.driver import SimulatedDriver
     from sim_nodes.network import SimNetwork
     from uwbnet.processes import fetch_epoch
@@ -159,13 +161,22 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
         epoch = fetch_epoch(session, cfg["net"], stop)
         if epoch is None:
             return
+        agents = []
         for node in cfg["ids"]:
             driver = stack.enter_context(SimulatedDriver(network, node, start=epoch))
-            agent = NodeAgent(
-                session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False)
+            agents.append(
+                NodeAgent(session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False))
             )
-            agent.start()
-            stack.callback(agent.stop)
+        if cfg.get("threads", "process") == "process":
+            # one acquisition thread serves the agents in slot order (no GIL hand-offs
+            # between K workers whose slots follow each other)
+            group = SlotOrderGroup(agents)
+            group.start()
+            stack.callback(group.stop)
+        else:
+            for agent in agents:
+                agent.start()
+                stack.callback(agent.stop)
         _ready(f"nodes {len(cfg['ids'])}")
         while not stop.wait(0.2):
             pass
@@ -208,6 +219,11 @@ def main(argv: list[str]) -> int:
         level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     role, cfg = argv[0], json.loads(argv[1])
+    if cfg.get("rt_priority"):
+        # Before any thread exists, so that zenoh's and ours inherit it: on a machine shared
+        # with other work the TDMA slots otherwise wait 10-30 ms behind other processes' time
+        # slices (docs/capacity.md, stop 17).
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(cfg["rt_priority"]))
     with stop_on_signals() as stop:
         ROLES[role](cfg, stop)
     return 0

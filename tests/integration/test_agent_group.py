@@ -1,0 +1,170 @@
+"""Node agents of one process on one acquisition thread (``node_agent.group``), over real zenoh.
+
+The agents of a :class:`SlotOrderGroup` share one session (as in a ``uwbnet scale`` node
+process) and a fusion center schedules them; the group must serve their slots in slot order
+from one thread, and deliver the same messages, counters and status as agents with their own
+threads.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+
+import pytest
+import zenoh
+
+from fusion_center.service import FusionConfig, FusionService
+from node_agent.agent import AgentConfig, NodeAgent
+from node_agent.group import SlotOrderGroup
+from node_agent.tdma import SlotTiming
+from protocol import Detections, Status, keys
+from protocol.transport import FifoChannel, session_config
+from sim_nodes.driver import SimulatedDriver
+from sim_nodes.network import SimNetwork
+from sim_nodes.scene import load_scenario
+
+pytestmark = pytest.mark.integration
+
+NET = "grouptest"
+
+
+def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.02)
+
+
+def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
+    network = SimNetwork(load_scenario("foyer3"), seed=7)
+    nodes = sorted(network.node_infos())
+    assert len(nodes) >= 3
+    got: FifoChannel[tuple[str, bytes]] = FifoChannel(100000)
+    start = time.time() + 0.3
+    with contextlib.ExitStack() as stack:
+        fs = stack.enter_context(zenoh.open(session_config(listen=[hub_endpoint])))
+        fusion = FusionService(fs, FusionConfig(net=NET, track=False), epoch=start)
+        fusion.start()
+        stack.callback(fusion.stop)
+        observer = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        sub = observer.declare_subscriber(
+            keys.all_key(NET), lambda s: got.put((str(s.key_expr), s.payload.to_bytes()))
+        )
+        stack.callback(sub.undeclare)
+        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        agents = []
+        for node in nodes:
+            driver = stack.enter_context(SimulatedDriver(network, node, start=start))
+            agents.append(
+                NodeAgent(session, driver, AgentConfig(node=node, net=NET, publish_ir=False))
+            )
+        group = SlotOrderGroup(agents)
+        group.start()
+        stack.callback(group.stop)
+        names = {t.name for t in threading.enumerate()}
+        assert not any(n.startswith("agent-") for n in names), names
+        assert {f"group-{nodes[0]}", f"group-{nodes[0]}-pub"} <= names
+        _wait_for(
+            lambda: all(a.counters["acquired"] >= 60 for a in agents), 20.0, "60 acquisitions each"
+        )
+        _wait_for(lambda: all(a.counters["published"] >= 61 for a in agents), 5.0, "status")
+    dets: list[Detections] = []
+    status: dict[str, Status] = {}
+    for key, payload in got.drain():
+        kind = keys.parse_key(key).kind
+        if kind == "detections":
+            dets.append(Detections.from_wire(payload))
+        elif kind == "status":
+            msg = Status.from_wire(payload)
+            status[msg.src] = msg
+    # Served in slot order: one thread, one publisher, so the group's detections leave (and
+    # arrive, over one session) in the order of their slot times, every node in every frame.
+    steady = [d for d in dets if d.frame >= dets[0].frame + 5]
+    times = [d.t for d in steady]
+    assert times == sorted(times)
+    # Every node in (nearly) every frame: the nodes join the schedule one by one at first, the
+    # last frame may be incomplete, and a loaded machine may make the thread skip a slot.
+    last = sorted({d.frame for d in steady})[-31:-1]
+    complete = [sorted(d.src for d in steady if d.frame == f) == nodes for f in last]
+    assert sum(complete) >= 20, complete  # a node never served: 0
+    for agent in agents:
+        assert agent.counters["dsp_errors"] == 0 and agent.counters["driver_errors"] == 0
+    assert set(status) == set(nodes)
+    assert all(s.acquired > 0 and 0.0 < s.cpu < 1.0 for s in status.values())
+    # the lateness histogram counts every acquisition up to the status (the last status may
+    # come before the group's last acquisitions)
+    for agent in agents:
+        s = status[agent.config.node]
+        assert len(s.extra["lateness_ms"]) == len(s.extra["lateness_edges_ms"]) + 1
+        assert sum(s.extra["lateness_ms"]) == s.acquired
+
+
+class _FakeAgent:
+    """Slots at fixed times; records when each was served (the group's contract only)."""
+
+    def __init__(self, name: str, times: list[float]) -> None:
+        self.name, self.times, self.served = name, list(times), []
+        self.config = type("C", (), {"node": name})()
+
+    def start(self, *, threads: bool = True) -> None:
+        assert threads is False
+
+    def stop(self) -> None:
+        pass
+
+    def next_slot(self) -> SlotTiming | None:
+        if not self.times:
+            return None
+        return SlotTiming(frame=0, slot=0, tx=self.name, t=self.times[0], duration=0.001)
+
+    def serve(self, slot: SlotTiming) -> int:
+        self.served.append((slot.t, time.time()))
+        self.times.pop(0)
+        return 0
+
+    def publish_pending(self, limit: int | None = None) -> None:
+        pass
+
+
+def test_group_serves_the_earliest_slot_first_and_never_early():
+    t0 = time.time() + 0.05
+    # interleaved slot times of three agents, given in a different order
+    a = _FakeAgent("a", [t0 + 0.010, t0 + 0.040])
+    b = _FakeAgent("b", [t0 + 0.000, t0 + 0.030])
+    c = _FakeAgent("c", [t0 + 0.020, t0 + 0.050])
+    group = SlotOrderGroup([a, b, c])  # type: ignore[list-item]
+    group.start()
+    try:
+        _wait_for(lambda: not (a.times or b.times or c.times), 5.0, "all slots served")
+    finally:
+        group.stop()
+    served = sorted((when, slot, agent.name) for agent in (a, b, c) for slot, when in agent.served)
+    assert [slot for _, slot, _ in served] == sorted(slot for _, slot, _ in served)
+    assert [name for _, _, name in served] == ["b", "a", "c", "b", "a", "c"]
+    assert all(when >= slot for when, slot, _ in served)
+
+
+def test_scale_spreads_a_node_process_over_the_frame():
+    from uwbnet.scale_cmd import ScaleConfig, _plan
+
+    def groups(**kw):  # type: ignore[no-untyped-def]
+        plan = _plan(ScaleConfig(nodes=20, people=2, **kw))
+        return [cfg["ids"] for _, role, cfg in plan if role == "nodes"]
+
+    spread, adjacent = groups(spread_slots=True), groups()
+    ids = sorted(i for g in spread for i in g)
+    assert ids == sorted(i for g in adjacent for i in g) and len(ids) == 20 == len(set(ids))
+    # slots go in id order: a process's four nodes are five slots (5 ms) apart, not adjacent
+    assert spread == [ids[g::5] for g in range(5)]
+    assert adjacent == [ids[4 * g : 4 * g + 4] for g in range(5)]
+    assert all(cfg["threads"] == "agent" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))
+
+
+def test_scale_rejects_a_bad_rt_priority_with_one_line():
+    from tests.cli import assert_one_line_error, uwbnet
+
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--rt-priority", "100"), "--rt-priority")
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--threads", "x"), "--threads")

@@ -35,6 +35,7 @@ from sim_nodes.driver import SimulatedDriver
 from sim_nodes.network import SimNetwork
 from sim_nodes.record import truth_message
 from sim_nodes.scene import Scenario
+from uwbnet.processes import settle_heap
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +126,7 @@ def _run_nodes(
             sessions = [
                 stack.enter_context(zenoh.open(session_config(connect=[hub]))) for _ in nodes
             ]
+            settle_heap()
             clock.loaded.set()
             while not clock.go.wait(0.2):
                 if stop.is_set():
@@ -287,6 +289,7 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             )
             recorder.start()
             stack.callback(recorder.stop)
+        settle_heap()
         clock.epoch.value = start
         clock.go.set()
         n_nodes = len(network.node_infos())

@@ -32,6 +32,7 @@ import zenoh
 
 from protocol import ProtocolError, Tracks, keys
 from protocol.transport import session_config
+from uwbnet.processes import settle_heap
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +79,9 @@ def _session(cfg: dict[str, Any], *, router: bool = False) -> zenoh.Session:
 
 
 def _ready(what: str) -> None:
+    # start-up is over: its heap never needs scanning again (a full collection of it stalls
+    # the process for 60-80 ms a few seconds into the run)
+    settle_heap()
     _say(f"ready {what}")
 
 

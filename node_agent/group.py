@@ -72,7 +72,9 @@ class SlotOrderGroup:
         """Stop the threads, publish what is queued, and stop (undeclare) every agent."""
         self._stop.set()
         self._queued.set()
-        for thread in self._threads:
+        # the acquisition thread first: what its last slot queues is then in the publisher's
+        # final flush
+        for thread in reversed(self._threads):
             thread.join(timeout=5.0)
         self._threads = []
         for agent in self.agents:

@@ -126,7 +126,6 @@ def _run_nodes(
             sessions = [
                 stack.enter_context(zenoh.open(session_config(connect=[hub]))) for _ in nodes
             ]
-            settle_heap()
             clock.loaded.set()
             while not clock.go.wait(0.2):
                 if stop.is_set():
@@ -138,11 +137,16 @@ def _run_nodes(
             truth_thread.start()
             stack.callback(truth_thread.join, 2.0)
             stack.callback(truth_stop.set)
-            for node, session in zip(nodes, sessions, strict=True):
-                driver = stack.enter_context(SimulatedDriver(network, node, start=start))
-                agent = NodeAgent(
-                    session, driver, AgentConfig(node=node, net=net, publish_ir=publish_ir)
+            agents = [
+                NodeAgent(
+                    session,
+                    stack.enter_context(SimulatedDriver(network, node, start=start)),
+                    AgentConfig(node=node, net=net, publish_ir=publish_ir),
                 )
+                for node, session in zip(nodes, sessions, strict=True)
+            ]
+            settle_heap()  # start-up is over, and no slot has run yet
+            for agent in agents:
                 agent.start()
                 stack.callback(agent.stop)
             ready.set()

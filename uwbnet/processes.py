@@ -142,8 +142,8 @@ def run_node(cfg: NodeFile, stop: threading.Event) -> int:
                     status_period=cfg.status_period,
                 ),
             )
-            agent.start()
             settle_heap()
+            agent.start()
             try:
                 _wait(stop)
             finally:
@@ -204,11 +204,10 @@ def run_simnode(cfg: SimNodeFile, stop: threading.Event) -> int:
             t.start()
             stack.callback(t.join, 2.0)
             stack.callback(truth_stop.set)
-        for node in nodes:
-            driver = stack.enter_context(SimulatedDriver(network, node, start=epoch))
-            agent = NodeAgent(
+        agents = [
+            NodeAgent(
                 session,
-                driver,
+                stack.enter_context(SimulatedDriver(network, node, start=epoch)),
                 AgentConfig(
                     node=node,
                     net=cfg.net,
@@ -216,9 +215,12 @@ def run_simnode(cfg: SimNodeFile, stop: threading.Event) -> int:
                     status_period=cfg.status_period,
                 ),
             )
+            for node in nodes
+        ]
+        settle_heap()  # before the slots run, not in one of them
+        for agent in agents:
             agent.start()
             stack.callback(agent.stop)
-        settle_heap()
         _wait(stop)
     return 0
 

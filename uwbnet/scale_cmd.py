@@ -189,6 +189,10 @@ def _spawn(
     # One process per core: OpenBLAS's own threads only fight the other processes for the two
     # cores (measured: a 120-path spectrum took 14 ms instead of 0.28 ms on a loaded machine).
     env.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    # -P (below) keeps the working directory off the children's sys.path; this process's own
+    # source root goes first instead, so they run the same uwbnet, installed or not
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
     err = open(log_dir / f"{name}.err", "w", encoding="utf-8")
     popen = subprocess.Popen(
         # -P: not the working directory first on sys.path (run from another checkout, the

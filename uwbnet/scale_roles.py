@@ -79,9 +79,6 @@ def _session(cfg: dict[str, Any], *, router: bool = False) -> zenoh.Session:
 
 
 def _ready(what: str) -> None:
-    # start-up is over: its heap never needs scanning again (a full collection of it stalls
-    # the process for 60-80 ms a few seconds into the run)
-    settle_heap()
     _say(f"ready {what}")
 
 
@@ -109,6 +106,7 @@ def run_hub(cfg: dict[str, Any], stop: threading.Event) -> None:
         single = cfg["workers"] == 1
         # Scenario time 0 (the TDMA epoch) is set now that the hub is up, not when it was
         # launched: the people are where the scenario says when the measurement starts.
+        settle_heap()
         epoch = time.time() + 0.5
         fusion = FusionService(session, FusionConfig(net=cfg["net"], track=single), epoch=epoch)
         _see_walls(fusion, cfg)
@@ -171,7 +169,10 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
             agents.append(
                 NodeAgent(session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False))
             )
-        if cfg.get("threads", "process") == "process":
+        # start-up is over (imports, kernels, scene, DSP state): its heap never needs scanning
+        # again; collected before the slots run, not in one of them
+        settle_heap()
+        if cfg.get("threads", "agent") == "process":
             # one acquisition thread serves the agents in slot order (no GIL hand-offs
             # between K workers whose slots follow each other)
             group = SlotOrderGroup(agents)
@@ -204,6 +205,7 @@ def run_worker(cfg: dict[str, Any], stop: threading.Event) -> None:
             ),
         )
         _see_walls(fusion, cfg)
+        settle_heap()
         fusion.start()
         try:
             _ready(f"worker {cell}")

@@ -721,7 +721,9 @@ class RbpfSlam:
         b = int(np.argmax(self.logw))
         lmap = self._match_map(b)
         n_pairs = sum(z.shape[0] for z in pairs)
-        if n_pairs:
+        # no mature landmark within reach of the new stop (a drive into a new area): nothing
+        # to match, the held acquisitions are replayed on the odometry alone
+        if n_pairs and lmap.kind.size:
             w = np.exp(self.logw - self.logw.max())
             w /= w.sum()
             d = self.pose - self.pose[b]

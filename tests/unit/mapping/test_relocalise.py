@@ -69,7 +69,7 @@ def test_scan_match_finds_the_stop_after_a_drive_with_heading_slip() -> None:
     assert reloc.explained(center, rel, pairs, _room_map()) < 0.5 * n_echo
 
 
-def _drive_run(relocalise: bool, seed: int) -> tuple[float, float, int, int]:
+def _drive_run(relocalise: bool, seed: int, reach: float = 6.0) -> tuple[float, float, int, int]:
     """Two stops mapped, then a 3.8 m drive whose odometry is 8 degrees off in heading.
 
     Returns the position (m) and heading (deg) error at the end of the last stop, the
@@ -90,6 +90,7 @@ def _drive_run(relocalise: bool, seed: int) -> tuple[float, float, int, int]:
         range_sigma=0.03,
         relocalise_distance=2.0 if relocalise else np.inf,
         relocalise_spread=0.0,
+        relocalise_reach=reach,
     )
     slam = RbpfSlam(ANTENNAS, cfg)
     held = 0
@@ -115,3 +116,12 @@ def test_issue_8_the_filter_holds_back_a_stop_after_a_long_drive_and_replays_it(
     # at its end); the relocalisation keeps the robot (0.24 m), it gains nothing here
     assert pos_on < 0.3
     assert pos_off < 0.3
+
+
+def test_a_stop_with_no_mature_landmark_in_reach_is_replayed_on_odometry() -> None:
+    # a drive into a new area: the match map is empty, which once raised out of the filter
+    # (and would have stopped the live mapping service)
+    pos, _, relocalisations, revised = _drive_run(True, 1, reach=0.0)
+    assert relocalisations == 0
+    assert revised == 30  # held back and replayed all the same
+    assert pos < 0.3

@@ -3,19 +3,13 @@ and their fallback when numba has no writable cache directory."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from node_agent.dsp import GaussianCfarDetector, RangeGmPhdFilter, kernels
+from tests.numba_cache import run_without_numba_cache
 
 from .test_reference_equivalence import ReferenceCfar, ReferenceRangePhd
-
-ROOT = Path(__file__).resolve().parents[3]
 
 
 def _random_mixture(rng, n_channels, span):
@@ -137,19 +131,7 @@ def test_kernels_work_without_a_writable_numba_cache(tmp_path):
         "    r, a = f.step(0.02 * k, [4.0 + 0.01 * k, 7.0], [1.0, 0.5])\n"
         "print(np.round(r, 9).tolist())\n"
     )
-    blocked = tmp_path / "file"
-    blocked.write_text("")
-    env = {
-        **os.environ,
-        "PYTHONPATH": str(ROOT),
-        # the only cache locator numba may use points below a regular file: not creatable,
-        # even for root (file permissions alone do not stop root)
-        "NUMBA_CACHE_LOCATOR_CLASSES": "UserProvidedCacheLocator",
-        "NUMBA_CACHE_DIR": str(blocked / "numba"),
-    }
-    res = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=240
-    )
+    res = run_without_numba_cache(code, tmp_path, timeout=240)
     assert res.returncode == 0, res.stderr
     assert "numba cache unavailable, compiling in memory" in res.stderr
     f = RangeGmPhdFilter()

@@ -5,10 +5,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,10 +17,9 @@ from fusion_center.tracking.gmphd import (
     _cap_label_weight,
     merge_components,
 )
+from tests.numba_cache import run_without_numba_cache
 
 from .sim import FRAME, crossing_truth, detect, sensors_around
-
-ROOT = Path(__file__).resolve().parents[3]
 
 
 def _random_mixture(rng, n, n_labels):
@@ -218,18 +213,7 @@ def test_tracking_kernels_work_without_a_writable_numba_cache(tmp_path):
         "    out = tr.step(0.02 * k, [scan])\n"
         "print(np.round(out.positions(), 9).tolist())\n"
     )
-    blocked = tmp_path / "file"
-    blocked.write_text("")
-    env = {
-        **os.environ,
-        "PYTHONPATH": str(ROOT),
-        # the only cache locator numba may use points below a regular file: not creatable
-        "NUMBA_CACHE_LOCATOR_CLASSES": "UserProvidedCacheLocator",
-        "NUMBA_CACHE_DIR": str(blocked / "numba"),
-    }
-    res = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300
-    )
+    res = run_without_numba_cache(code, tmp_path, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "numba cache unavailable, compiling in memory" in res.stderr
     tracker = GmPhdTracker(GmPhdConfig(surveillance_area=50.0))

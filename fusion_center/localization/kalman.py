@@ -85,8 +85,10 @@ class PositionKalmanTracker:
 
     def _transition(self, dt: float, q: float | None = None) -> tuple[FloatArray, FloatArray]:
         f1, q1 = _cv_1d(dt, self.q if q is None else q)
-        z = np.zeros((2, 2))
-        return np.block([[f1, z], [z, f1]]), np.block([[q1, z], [z, q1]])
+        f, qm = np.zeros((4, 4)), np.zeros((4, 4))
+        f[:2, :2] = f[2:, 2:] = f1
+        qm[:2, :2] = qm[2:, 2:] = q1
+        return f, qm
 
     def step(
         self,

@@ -42,6 +42,7 @@ solution is reachable by a manoeuvre.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -146,6 +147,22 @@ class PoseResult:
     fix: PositionFix
 
 
+@functools.lru_cache(maxsize=256)
+def _chi2_quantile(p: float, dof: int) -> float:
+    """The chi-square quantile (cached: scipy's ppf costs as much as a fix)."""
+    return float(chi2.ppf(p, dof))
+
+
+def _mahalanobis(prior: tuple[FloatArray, FloatArray], x: FloatArray, c: FloatArray) -> float:
+    """Squared distance of a fix ``x`` (cov ``c``) from a predicted ``(state, cov)``."""
+    state, cov = prior
+    d = x - state[[0, 2]]
+    try:
+        return float(d @ np.linalg.solve(cov[np.ix_([0, 2], [0, 2])] + c, d))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
 def _innovations(
     prior: tuple[FloatArray, FloatArray], anchors: FloatArray, r: FloatArray, std: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -187,6 +204,8 @@ class RangingLocalizer:
         self.height = float(height)
         self.locator = LOCATORS[self.config.method]()
         self._local = TaylorSeriesLocator()
+        # from the prediction, a millimetre off: two or three steps converge
+        self._quick = TaylorSeriesLocator(max_iterations=3)
         cfg = self.config
         self.tracker = PositionKalmanTracker(cfg.robust_q if cfg.robust and cfg.mitigate else cfg.q)
         # per anchor: (t, range, snr_db, per-impulse-response NLOS flag) of recent rounds
@@ -295,20 +314,14 @@ class RangingLocalizer:
                 # outlier: the track drifted (a track that only trusts itself never recovers);
                 # widen the prediction until that range is within the gate
                 fading = float(np.max(z[persistent]) / cfg.robust_k) ** 2
-            elif n_los >= 3:
+            elif n_los >= 3 and np.any(off):
                 # the LOS ranges alone, from the prediction: a fix outside the prediction's
                 # gate whose ranges agree with each other says the prediction drifted (with
                 # two LOS ranges nothing tells an outlier from a drift)
                 xy = prior[0][[0, 2]]
-                local = self._local.from_start(anchors[los], r[los], std[los], xy)
-                if local is not None and local[2] <= float(chi2.ppf(0.999, n_los - 2)):
-                    d = local[0] - xy
-                    p = prior[1][np.ix_([0, 2], [0, 2])] + local[1]
-                    try:
-                        d2 = float(d @ np.linalg.solve(p, d))
-                    except np.linalg.LinAlgError:
-                        d2 = 0.0
-                    fading = d2 / cfg.fading_gate
+                local = self._quick.from_start(anchors[los], r[los], std[los], xy)
+                if local is not None and local[2] <= _chi2_quantile(0.999, n_los - 2):
+                    fading = _mahalanobis(prior, local[0], local[1]) / cfg.fading_gate
             fading = min(max(fading, 1.0), cfg.manoeuvre_gate)
         if manoeuvre or fading > 1.0:
             wider = self.tracker.predict(t, cfg.q_manoeuvre if manoeuvre else None, fading)
@@ -338,7 +351,7 @@ class RangingLocalizer:
             if not fix.ok:
                 break
             res = np.abs(np.linalg.norm(fix.position - anchors, axis=1) - r) / std
-            if float(np.sum(res[los] ** 2)) <= float(chi2.ppf(1.0 - cfg.snoop_alpha, n_los - 2)):
+            if float(np.sum(res[los] ** 2)) <= _chi2_quantile(1.0 - cfg.snoop_alpha, n_los - 2):
                 break
             worst = int(np.argmax(np.where(los, res, -1.0)))
             std = std.copy()
@@ -354,11 +367,18 @@ class RangingLocalizer:
         r: FloatArray,
         std: FloatArray,
         fix: PositionFix,
+        reach_t: float | None = None,
     ) -> PositionFix:
         """The fix, or the local solution near the prediction when the fix is the other
-        branch of an ambiguous geometry (see the module docstring)."""
+        branch of an ambiguous geometry (see the module docstring). With ``reach_t`` (the
+        robust track) the gate is that of a manoeuvre's prediction at that time."""
         if not np.all(np.isfinite(fix.position)) or not np.all(np.isfinite(fix.cov)):
             return fix
+        if reach_t is not None:
+            # inside the tight prediction's gate is inside the manoeuvre's: no prediction
+            if _mahalanobis(prior, fix.position, fix.cov) <= self.config.branch_gate:
+                return fix
+            prior = self.tracker.predict(reach_t, self.config.q_manoeuvre) or prior
         state, cov = prior
         xy = state[[0, 2]]
         p = cov[np.ix_([0, 2], [0, 2])]
@@ -426,8 +446,7 @@ class RangingLocalizer:
         if prior is not None and self.config.mitigate and self.config.branch_gate > 0:
             # with the robust track's tight prediction, the branch test asks whether the
             # local solution is reachable by a manoeuvre, not whether it fits the cruise
-            reach = self.tracker.predict(t, self.config.q_manoeuvre) if robust else prior
-            fix = self._branch(reach if reach is not None else prior, pos[:, :2], r, std, fix)
+            fix = self._branch(prior, pos[:, :2], r, std, fix, t if robust else None)
         usable = fix.ok or (initial is not None and np.all(np.isfinite(fix.position)))
         if not self.tracker.initialised and not fix.ok:
             cov3 = np.diag([np.inf, np.inf, np.pi**2 / 3.0])

@@ -96,6 +96,8 @@ class LocalizerConfig:
     persist : rounds running a LOS range may stay beyond ``robust_k`` on the same side before
         the prediction, not the range, is taken to be off (fading); 5 rounds outlast the
         channel of a standing node (``coherence_time`` 0.3 s at 10 rounds/s).
+    cov_window : fixes behind the published covariance's factor (:meth:`RangingLocalizer.
+        _cov_factor`).
     q_manoeuvre : acceleration noise density of a manoeuvre's prediction, m²/s³ (2.5: a
         0.5 m/s velocity change within one 0.1 s round).
     """
@@ -118,6 +120,7 @@ class LocalizerConfig:
     fading_gate: float = 13.8
     snoop_alpha: float = 0.01
     persist: int = 5
+    cov_window: int = 100
     q_manoeuvre: float = 2.5
 
 
@@ -217,6 +220,8 @@ class RangingLocalizer:
         self._far: set[tuple[str, bool]] = set()
         # anchor -> (sign, rounds running) of LOS innovations beyond robust_k
         self._streak: dict[str, tuple[float, int]] = {}
+        # normalised innovations of the fixes against the prediction (cruise rounds)
+        self._nis_fix: deque[float] = deque(maxlen=self.config.cov_window)
 
     def los_decisions(self) -> dict[str, bool]:
         """The current NLOS decision of every anchor with a history (True: LOS): eq. (6),
@@ -261,6 +266,17 @@ class RangingLocalizer:
         if np.sum(z > self.config.gate) == 1:
             out[np.argmax(z)] = True
         return out
+
+    def _cov_factor(self) -> float:
+        """Factor on the published position covariance (robust track): the mean normalised
+        innovation of the recent fixes against the prediction over its expectation (2),
+        at least 1 (covariance matching, after Mehra). The track's covariance is that of
+        Gaussian errors; the fixes' errors have a tail (leaked multipath outliers, errors
+        correlated over a standing node's rounds), and the mean, unlike a median, counts it,
+        so that the published covariance matches the mean-square error."""
+        if len(self._nis_fix) < self._nis_fix.maxlen // 4:
+            return 1.0
+        return max(float(np.mean(np.minimum(self._nis_fix, 1e3))) / 2.0, 1.0)
 
     def _robust(
         self,
@@ -448,6 +464,12 @@ class RangingLocalizer:
             # local solution is reachable by a manoeuvre, not whether it fits the cruise
             fix = self._branch(prior, pos[:, :2], r, std, fix, t if robust else None)
         usable = fix.ok or (initial is not None and np.all(np.isfinite(fix.position)))
+        if robust and usable and prior is not None and q_step is None and fading == 1.0:
+            # the fix against the (tight) prediction: its normalised innovation, for the
+            # fix covariance's a-posteriori factor
+            nis = _mahalanobis(prior, fix.position, fix.cov)
+            if math.isfinite(nis):
+                self._nis_fix.append(nis)
         if not self.tracker.initialised and not fix.ok:
             cov3 = np.diag([np.inf, np.inf, np.pi**2 / 3.0])
             pose = (float("nan"), float("nan"), self.height, float("nan"))
@@ -457,7 +479,7 @@ class RangingLocalizer:
         )
         speed = math.hypot(state[1], state[3])
         cov3 = np.zeros((3, 3))
-        cov3[:2, :2] = p[np.ix_([0, 2], [0, 2])]
+        cov3[:2, :2] = p[np.ix_([0, 2], [0, 2])] * self._cov_factor()
         if speed > MIN_SPEED_FOR_YAW:
             self._yaw = math.atan2(state[3], state[1])
             # heading of the velocity: var(angle) ~ var(v_perp) / speed²

@@ -81,8 +81,12 @@ class LocalizerConfig:
         prediction, and the cost margin by which the ranges must prefer a fix outside it over
         the local solution near the prediction (13.8: 0.1 % of true fixes fall outside);
         0: off.
-    robust : with ``mitigate``, weight every LOS range by its innovation against the track's
-        prediction (see the module docstring) instead of the single-range ``gate``.
+    robust : with ``mitigate`` and the ``taylor`` method, weight every LOS range by its
+        innovation against the track's prediction (see the module docstring) instead of the
+        single-range ``gate``. The closed-form ``lls`` and ``aml`` fixes cannot start from
+        the prediction; with two LOS anchors and the NLOS ones de-weighted against
+        millimetre LOS ranges they fail or lose the circle intersection, so they keep the
+        plain track.
     robust_q : acceleration noise density of the robust track between manoeuvres, m²/s³.
     min_range_std : floor of a LOS range's standard deviation in the robust track, m (the
         links report the noise core's bound; without ``robust`` the floor is ``test.los_std``).
@@ -210,7 +214,11 @@ class RangingLocalizer:
         # from the prediction, a millimetre off: two or three steps converge
         self._quick = TaylorSeriesLocator(max_iterations=3)
         cfg = self.config
-        self.tracker = PositionKalmanTracker(cfg.robust_q if cfg.robust and cfg.mitigate else cfg.q)
+        # the robust track needs a fix that starts from the prediction (Gauss-Newton): the
+        # closed-form LS and approximate-ML fixes fail or lose the circle intersection with
+        # two LOS anchors once the NLOS ones are de-weighted against millimetre LOS ranges
+        self._robust_on = cfg.robust and cfg.mitigate and cfg.method == "taylor"
+        self.tracker = PositionKalmanTracker(cfg.robust_q if self._robust_on else cfg.q)
         # per anchor: (t, range, snr_db, per-impulse-response NLOS flag) of recent rounds
         self._history: dict[str, deque[tuple[float, float, float, bool]]] = {}
         ev = self.config.evidence
@@ -442,7 +450,7 @@ class RangingLocalizer:
         los = {a: los_all.get(a, True) for a in ids}
         pos = np.array([self.anchors[a] for a in ids], float).reshape(-1, 3)
         r3 = np.array([links[a][0] for a in ids], float)
-        robust = self.config.robust and self.config.mitigate
+        robust = self._robust_on
         floor = self.config.min_range_std if robust else self.config.test.los_std
         std = np.array([max(links[a][1], floor) for a in ids], float)
         nlos = np.array([not los[a] for a in ids], bool)

@@ -230,6 +230,8 @@ class RangingLocalizer:
         self._streak: dict[str, tuple[float, int]] = {}
         # normalised innovations of the fixes against the prediction (cruise rounds)
         self._nis_fix: deque[float] = deque(maxlen=self.config.cov_window)
+        # squared LOS innovations (standard deviations) of the recent rounds
+        self._z2: deque[float] = deque(maxlen=4 * self.config.cov_window)
 
     def los_decisions(self) -> dict[str, bool]:
         """The current NLOS decision of every anchor with a history (True: LOS): eq. (6),
@@ -284,7 +286,11 @@ class RangingLocalizer:
         so that the published covariance matches the mean-square error."""
         if len(self._nis_fix) < self._nis_fix.maxlen // 4:
             return 1.0
-        return max(float(np.mean(np.minimum(self._nis_fix, 1e3))) / 2.0, 1.0)
+        # the LOS ranges' spread beyond their reported noise core (median squared innovation
+        # over that of a chi-square with one degree of freedom: the small multipath errors
+        # the weights keep), times what the fixes' innovations say beyond that
+        spread = max(float(np.median(self._z2)) / 0.455, 1.0)
+        return spread * max(float(np.mean(np.minimum(self._nis_fix, 1e3))) / 2.0, 1.0)
 
     def _robust(
         self,
@@ -311,6 +317,7 @@ class RangingLocalizer:
         """
         cfg = self.config
         innovation, z = _innovations(prior, anchors, r, std)
+        self._z2.extend((z[los] ** 2).tolist())
         far = los & (z > math.sqrt(cfg.manoeuvre_gate))
         far_now = {(ids[i], bool(innovation[i] > 0)) for i in np.flatnonzero(far)}
         repeated = bool(far_now & self._far)

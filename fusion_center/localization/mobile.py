@@ -29,8 +29,9 @@ track with a tight prediction sees it. The track runs with a small acceleration 
 link's ``std``, floor ``min_range_std``), inflated by ``(z / robust_k) ** robust_power`` when
 its innovation ``z`` against the prediction (range and prediction variances together) exceeds
 ``robust_k``: an M-estimator weight on the innovation, after Chang (J. Geodesy 88, 2014,
-robust Kalman filtering with the Mahalanobis distance as outlier criterion). The reported
-covariance is that of the weighted fix, so it grows with the down-weighting. The prediction
+robust Kalman filtering with the Mahalanobis distance as outlier criterion). The published
+covariance is the filter's, scaled by the LOS ranges' spread beyond their noise core and by
+the fixes' mean normalised innovation (:meth:`RangingLocalizer._cov_factor`). The prediction
 itself is checked first: when most LOS ranges are far off it (``manoeuvre_gate``), or with
 two LOS anchors one is far off on the same side in two rounds running, the node changed its
 motion and the round is predicted with ``q_manoeuvre``; when the LOS ranges agree with each

@@ -202,7 +202,7 @@ def evaluate_localization(
                 fn += not flagged
 
     def rms(e: list[np.ndarray]) -> float | None:
-        return round(float(np.sqrt(np.mean(np.sum(np.square(e), axis=1)))), 4) if e else None
+        return round(float(np.sqrt(np.mean(np.sum(np.square(e), axis=1)))), 5) if e else None
 
     return {
         "evaluated_rounds": n_rounds,

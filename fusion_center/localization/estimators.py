@@ -12,6 +12,7 @@ well) or a numerically singular normal matrix.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -77,13 +78,27 @@ def geometry_problem(anchors: FloatArray) -> str:
     return ""
 
 
+def _condition(normal: FloatArray) -> float:
+    """Condition number of a symmetric positive semi-definite normal matrix (closed form for
+    2 x 2, the hot case of every fix: an SVD costs more than the rest of a Gauss-Newton
+    step)."""
+    if normal.shape != (2, 2):
+        return float(np.linalg.cond(normal))
+    half = 0.5 * (normal[0, 0] + normal[1, 1])
+    root = math.sqrt(
+        max(half * half - (normal[0, 0] * normal[1, 1] - normal[0, 1] * normal[1, 0]), 0.0)
+    )
+    low = half - root
+    return float("inf") if low <= 0.0 else (half + root) / low
+
+
 def _solve_weighted(
     design: FloatArray, rhs: FloatArray, weight: FloatArray
 ) -> tuple[FloatArray, FloatArray] | None:
     """Weighted least squares ``argmin (rhs - design x)' W (rhs - design x)`` with its
     covariance ``(design' W design)^-1``; None when the normal matrix is singular."""
     normal = design.T @ (weight[:, None] * design)
-    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+    if not np.all(np.isfinite(normal)) or _condition(normal) > 1e12:
         return None
     x = np.linalg.solve(normal, design.T @ (weight * rhs))
     cov = np.linalg.solve(normal, np.eye(normal.shape[0]))

@@ -72,21 +72,36 @@ class PositionKalmanTracker:
     def initialised(self) -> bool:
         return self._kf is not None
 
-    def predict(self, t: float) -> tuple[FloatArray, FloatArray] | None:
+    def predict(
+        self, t: float, q: float | None = None, fading: float = 1.0
+    ) -> tuple[FloatArray, FloatArray] | None:
         """Predicted ``(state, cov)`` at ``t`` without changing the filter (None before the
-        first fix)."""
+        first fix); ``q`` overrides the acceleration noise density of this prediction and
+        ``fading`` (>= 1) multiplies the propagated covariance (fading memory)."""
         if self._kf is None:
             return None
-        f, qm = self._transition(max(t - self._t, 0.0))
-        return f @ self._kf.x, f @ self._kf.P @ f.T + qm
+        f, qm = self._transition(max(t - self._t, 0.0), q)
+        return f @ self._kf.x, fading * (f @ self._kf.P @ f.T) + qm
 
-    def _transition(self, dt: float) -> tuple[FloatArray, FloatArray]:
-        f1, q1 = _cv_1d(dt, self.q)
-        z = np.zeros((2, 2))
-        return np.block([[f1, z], [z, f1]]), np.block([[q1, z], [z, q1]])
+    def _transition(self, dt: float, q: float | None = None) -> tuple[FloatArray, FloatArray]:
+        f1, q1 = _cv_1d(dt, self.q if q is None else q)
+        f, qm = np.zeros((4, 4)), np.zeros((4, 4))
+        f[:2, :2] = f[2:, 2:] = f1
+        qm[:2, :2] = qm[2:, 2:] = q1
+        return f, qm
 
-    def step(self, t: float, position: FloatArray | None, cov: FloatArray | None):
-        """Predict to ``t`` and update with a fix (``position`` (2,), ``cov`` (2, 2)) if given.
+    def step(
+        self,
+        t: float,
+        position: FloatArray | None,
+        cov: FloatArray | None,
+        q: float | None = None,
+        fading: float = 1.0,
+    ):
+        """Predict to ``t`` and update with a fix (``position`` (2,), ``cov`` (2, 2)) if given;
+        ``q`` overrides the acceleration noise density of this step (a manoeuvre) and
+        ``fading`` (>= 1) multiplies the propagated covariance (filterpy's fading memory,
+        ``alpha`` squared).
 
         Returns
         -------
@@ -106,8 +121,10 @@ class PositionKalmanTracker:
             self._kf, self._t = kf, t
             return kf.x.copy(), kf.P.copy()
         kf = self._kf
-        kf.F, kf.Q = self._transition(max(t - self._t, 0.0))
+        kf.F, kf.Q = self._transition(max(t - self._t, 0.0), q)
+        kf.alpha = float(np.sqrt(max(fading, 1.0)))
         kf.predict()
+        kf.alpha = 1.0
         if position is not None and cov is not None:
             kf.update(np.asarray(position, float), R=np.asarray(cov, float))
         self._t = t

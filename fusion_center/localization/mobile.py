@@ -18,17 +18,39 @@ cost) is the other branch of the same ranges (two LOS anchors plus de-weighted N
 leave two nearly equal minima); the solution near the prediction, the larger posterior,
 replaces it.
 Without mitigation every anchor enters with its LOS variance (the baseline).
+
+Robust track (``robust``, the default with mitigation; beyond the chapter). The LOS range
+error of the simulated 802.15.4a channels is a noise core at the CRLB plus a tail of
+millimetre to centimetre errors, of either sign, from rays arriving within a pulse width of
+the direct path; the channel is redrawn every round while the node moves (every
+``coherence_time`` while it stands), so the tail is independent from round to round and a
+track with a tight prediction sees it. The track runs with a small acceleration noise
+(``robust_q``) and every LOS range enters with its own noise-core standard deviation (the
+link's ``std``, floor ``min_range_std``), inflated by ``(z / robust_k) ** robust_power`` when
+its innovation ``z`` against the prediction (range and prediction variances together) exceeds
+``robust_k``: an M-estimator weight on the innovation, after Chang (J. Geodesy 88, 2014,
+robust Kalman filtering with the Mahalanobis distance as outlier criterion). The published
+covariance is the filter's, scaled by the LOS ranges' spread beyond their noise core and by
+the fixes' mean normalised innovation (:meth:`RangingLocalizer._cov_factor`). The prediction
+itself is checked first: when most LOS ranges are far off it (``manoeuvre_gate``), or with
+two LOS anchors one is far off on the same side in two rounds running, the node changed its
+motion and the round is predicted with ``q_manoeuvre``; when the LOS ranges agree with each
+other on a fix outside the prediction's gate (``fading_gate``), the prediction's covariance is
+scaled up to meet it (a fading memory). The mirror-branch check then asks whether the local
+solution is reachable by a manoeuvre.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
+from scipy.stats import chi2
 
 from .estimators import LOCATORS, PositionFix, TaylorSeriesLocator, horizontal_ranges
 from .kalman import PositionKalmanTracker
@@ -60,6 +82,29 @@ class LocalizerConfig:
         prediction, and the cost margin by which the ranges must prefer a fix outside it over
         the local solution near the prediction (13.8: 0.1 % of true fixes fall outside);
         0: off.
+    robust : with ``mitigate`` and the ``taylor`` method, weight every LOS range by its
+        innovation against the track's prediction (see the module docstring) instead of the
+        single-range ``gate``. The closed-form ``lls`` and ``aml`` fixes cannot start from
+        the prediction; with two LOS anchors and the NLOS ones de-weighted against
+        millimetre LOS ranges they fail or lose the circle intersection, so they keep the
+        plain track.
+    robust_q : acceleration noise density of the robust track between manoeuvres, m²/s³.
+    min_range_std : floor of a LOS range's standard deviation in the robust track, m (the
+        links report the noise core's bound; without ``robust`` the floor is ``test.los_std``).
+    robust_k : innovation (standard deviations) beyond which a LOS range is down-weighted.
+    robust_power : its standard deviation grows as ``(z / robust_k) ** robust_power``.
+    manoeuvre_gate : squared innovation beyond which a range is far off the prediction; most
+        LOS ranges far off (or, with two, one on the same side twice running) is a manoeuvre.
+    fading_gate : chi-square gate of the LOS ranges' own consistent fix against the
+        prediction; beyond it the prediction's covariance is scaled up to meet the fix.
+    snoop_alpha : false-alarm rate of the fix's residual test (:meth:`RangingLocalizer._snoop`).
+    persist : rounds running a LOS range may stay beyond ``robust_k`` on the same side before
+        the prediction, not the range, is taken to be off (fading); 5 rounds outlast the
+        channel of a standing node (``coherence_time`` 0.3 s at 10 rounds/s).
+    cov_window : fixes behind the published covariance's factor (:meth:`RangingLocalizer.
+        _cov_factor`).
+    q_manoeuvre : acceleration noise density of a manoeuvre's prediction, m²/s³ (2.5: a
+        0.5 m/s velocity change within one 0.1 s round).
     """
 
     method: str = "taylor"
@@ -71,6 +116,17 @@ class LocalizerConfig:
     q: float = 0.5
     gate: float = 4.0
     branch_gate: float = 13.8
+    robust: bool = True
+    robust_q: float = 1e-4
+    min_range_std: float = 2e-4
+    robust_k: float = 3.0
+    robust_power: float = 2.0
+    manoeuvre_gate: float = 200.0
+    fading_gate: float = 13.8
+    snoop_alpha: float = 0.01
+    persist: int = 5
+    cov_window: int = 100
+    q_manoeuvre: float = 2.5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -99,6 +155,38 @@ class PoseResult:
     fix: PositionFix
 
 
+@functools.lru_cache(maxsize=256)
+def _chi2_quantile(p: float, dof: int) -> float:
+    """The chi-square quantile (cached: scipy's ppf costs as much as a fix)."""
+    return float(chi2.ppf(p, dof))
+
+
+def _mahalanobis(prior: tuple[FloatArray, FloatArray], x: FloatArray, c: FloatArray) -> float:
+    """Squared distance of a fix ``x`` (cov ``c``) from a predicted ``(state, cov)``."""
+    state, cov = prior
+    d = x - state[[0, 2]]
+    try:
+        return float(d @ np.linalg.solve(cov[np.ix_([0, 2], [0, 2])] + c, d))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
+def _innovations(
+    prior: tuple[FloatArray, FloatArray], anchors: FloatArray, r: FloatArray, std: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Range innovations against a predicted ``(state, cov)`` (state ``[x, vx, y, vy]``), m,
+    and their size in standard deviations of range and prediction together."""
+    state, cov = prior
+    xy = state[[0, 2]]
+    p = cov[np.ix_([0, 2], [0, 2])]
+    diff = xy - anchors
+    d = np.maximum(np.linalg.norm(diff, axis=1), 1e-6)
+    u = diff / d[:, None]
+    var = std**2 + np.einsum("ki,ij,kj->k", u, p, u)
+    innovation = r - d
+    return innovation, np.abs(innovation) / np.sqrt(var)
+
+
 class RangingLocalizer:
     """Localizes and tracks one mobile node (see the module docstring).
 
@@ -124,12 +212,27 @@ class RangingLocalizer:
         self.height = float(height)
         self.locator = LOCATORS[self.config.method]()
         self._local = TaylorSeriesLocator()
-        self.tracker = PositionKalmanTracker(self.config.q)
+        # from the prediction, a millimetre off: two or three steps converge
+        self._quick = TaylorSeriesLocator(max_iterations=3)
+        cfg = self.config
+        # the robust track needs a fix that starts from the prediction (Gauss-Newton): the
+        # closed-form LS and approximate-ML fixes fail or lose the circle intersection with
+        # two LOS anchors once the NLOS ones are de-weighted against millimetre LOS ranges
+        self._robust_on = cfg.robust and cfg.mitigate and cfg.method == "taylor"
+        self.tracker = PositionKalmanTracker(cfg.robust_q if self._robust_on else cfg.q)
         # per anchor: (t, range, snr_db, per-impulse-response NLOS flag) of recent rounds
         self._history: dict[str, deque[tuple[float, float, float, bool]]] = {}
         ev = self.config.evidence
         self._evidence = None if ev is None else dataclasses.replace(ev, mse=self.config.test)
         self._yaw = 0.0
+        # (anchor, range long) of the LOS ranges far off the last prediction
+        self._far: set[tuple[str, bool]] = set()
+        # anchor -> (sign, rounds running) of LOS innovations beyond robust_k
+        self._streak: dict[str, tuple[float, int]] = {}
+        # normalised innovations of the fixes against the prediction (cruise rounds)
+        self._nis_fix: deque[float] = deque(maxlen=self.config.cov_window)
+        # squared LOS innovations (standard deviations) of the recent rounds
+        self._z2: deque[float] = deque(maxlen=4 * self.config.cov_window)
 
     def los_decisions(self) -> dict[str, bool]:
         """The current NLOS decision of every anchor with a history (True: LOS): eq. (6),
@@ -167,20 +270,127 @@ class RangingLocalizer:
         std: FloatArray,
     ) -> npt.NDArray[np.bool_]:
         """Ranges beyond the gate around the distance predicted by the track."""
-        state, cov = prior
-        xy = state[[0, 2]]
-        p = cov[np.ix_([0, 2], [0, 2])]
-        diff = xy - anchors
-        d = np.maximum(np.linalg.norm(diff, axis=1), 1e-6)
-        u = diff / d[:, None]
-        var = std**2 + np.einsum("ki,ij,kj->k", u, p, u)
-        z = np.abs(r - d) / np.sqrt(var)
+        _, z = _innovations(prior, anchors, r, std)
         out = np.zeros(r.size, bool)
         # one outlier per round at most: when several ranges disagree with the prediction, the
         # prediction is the likelier culprit (a track started on NLOS ranges), so trust the ranges
         if np.sum(z > self.config.gate) == 1:
             out[np.argmax(z)] = True
         return out
+
+    def _cov_factor(self) -> float:
+        """Factor on the published position covariance (robust track): the mean normalised
+        innovation of the recent fixes against the prediction over its expectation (2),
+        at least 1 (covariance matching, after Mehra). The track's covariance is that of
+        Gaussian errors; the fixes' errors have a tail (leaked multipath outliers, errors
+        correlated over a standing node's rounds), and the mean, unlike a median, counts it,
+        so that the published covariance matches the mean-square error."""
+        if len(self._nis_fix) < self._nis_fix.maxlen // 4:
+            return 1.0
+        # the LOS ranges' spread beyond their reported noise core (median squared innovation
+        # over that of a chi-square with one degree of freedom: the small multipath errors
+        # the weights keep), times what the fixes' innovations say beyond that
+        spread = max(float(np.median(self._z2)) / 0.455, 1.0)
+        return spread * max(float(np.mean(np.minimum(self._nis_fix, 1e3))) / 2.0, 1.0)
+
+    def _robust(
+        self,
+        t: float,
+        prior: tuple[FloatArray, FloatArray],
+        anchors: FloatArray,
+        r: FloatArray,
+        std: FloatArray,
+        los: npt.NDArray[np.bool_],
+        ids: list[str],
+    ) -> tuple[FloatArray, tuple[FloatArray, FloatArray], float | None, float]:
+        """Robust weights of the LOS ranges against the track's prediction (module docstring).
+
+        Returns
+        -------
+        std : ndarray, shape (k,)
+            The ranges' standard deviations, LOS ones inflated, m.
+        prior : (state, cov)
+            The prediction the weights were taken against (widened on a manoeuvre or drift).
+        q : float or None
+            ``q_manoeuvre`` when the round is a manoeuvre, else None.
+        fading : float
+            Factor (>= 1) on the predicted covariance for this round.
+        """
+        cfg = self.config
+        innovation, z = _innovations(prior, anchors, r, std)
+        self._z2.extend((z[los] ** 2).tolist())
+        far = los & (z > math.sqrt(cfg.manoeuvre_gate))
+        far_now = {(ids[i], bool(innovation[i] > 0)) for i in np.flatnonzero(far)}
+        repeated = bool(far_now & self._far)
+        self._far = far_now
+        # rounds running in which each LOS range was off the prediction on the same side
+        off = los & (z > cfg.robust_k)
+        streak = {}
+        for i in np.flatnonzero(off):
+            side, count = self._streak.get(ids[i], (0.0, 0))
+            sign = float(np.sign(innovation[i]))
+            streak[ids[i]] = (sign, count + 1 if sign == side else 1)
+        self._streak = streak
+        n_los = int(np.count_nonzero(los))
+        manoeuvre, fading = False, 1.0
+        if n_los >= 2 and (len(far_now) >= max(2, n_los - 1) or (repeated and n_los == 2)):
+            # (nearly) every LOS range far off the prediction, or with two LOS anchors one far
+            # off on the same side in two rounds running: the node changed its motion (the
+            # multipath tail is independent per range and per round while the node moves,
+            # and rarely that large)
+            manoeuvre = True
+        else:
+            persistent = [i for i in np.flatnonzero(off) if streak[ids[i]][1] >= cfg.persist]
+            if persistent:
+                # a range off on the same side longer than a standing node's channel keeps an
+                # outlier: the track drifted (a track that only trusts itself never recovers);
+                # widen the prediction until that range is within the gate
+                fading = float(np.max(z[persistent]) / cfg.robust_k) ** 2
+            elif n_los >= 3 and np.any(off):
+                # the LOS ranges alone, from the prediction: a fix outside the prediction's
+                # gate whose ranges agree with each other says the prediction drifted (with
+                # two LOS ranges nothing tells an outlier from a drift)
+                xy = prior[0][[0, 2]]
+                local = self._quick.from_start(anchors[los], r[los], std[los], xy)
+                if local is not None and local[2] <= _chi2_quantile(0.999, n_los - 2):
+                    fading = _mahalanobis(prior, local[0], local[1]) / cfg.fading_gate
+            fading = min(max(fading, 1.0), cfg.manoeuvre_gate)
+        if manoeuvre or fading > 1.0:
+            wider = self.tracker.predict(t, cfg.q_manoeuvre if manoeuvre else None, fading)
+            if wider is not None:
+                prior = wider
+                _, z = _innovations(prior, anchors, r, std)
+        scale = np.where(los, np.maximum(1.0, z / cfg.robust_k) ** cfg.robust_power, 1.0)
+        return std * scale, prior, (cfg.q_manoeuvre if manoeuvre else None), fading
+
+    def _snoop(
+        self,
+        anchors: FloatArray,
+        r: FloatArray,
+        std: FloatArray,
+        los: npt.NDArray[np.bool_],
+        fix: PositionFix,
+        initial: FloatArray | None,
+    ) -> tuple[PositionFix, FloatArray]:
+        """Data snooping of the fix's own LOS residuals (Baarda's iterated test): while the
+        weighted residuals fail the chi-square test (``snoop_alpha``), the LOS range with the
+        largest normalised residual is down-weighted like an innovation outlier and the fix
+        recomputed, as long as a redundant LOS range is left. Catches what the prediction
+        cannot: outliers right after a manoeuvre, when the prediction is loose."""
+        cfg = self.config
+        n_los = int(np.count_nonzero(los))
+        for _ in range(max(n_los - 3, 0)):
+            if not fix.ok:
+                break
+            res = np.abs(np.linalg.norm(fix.position - anchors, axis=1) - r) / std
+            if float(np.sum(res[los] ** 2)) <= _chi2_quantile(1.0 - cfg.snoop_alpha, n_los - 2):
+                break
+            worst = int(np.argmax(np.where(los, res, -1.0)))
+            std = std.copy()
+            std[worst] *= max(1.0, res[worst] / cfg.robust_k) ** cfg.robust_power
+            fix = self.locator.locate(anchors, r, std, initial=initial)
+            n_los -= 1
+        return fix, std
 
     def _branch(
         self,
@@ -189,11 +399,18 @@ class RangingLocalizer:
         r: FloatArray,
         std: FloatArray,
         fix: PositionFix,
+        reach_t: float | None = None,
     ) -> PositionFix:
         """The fix, or the local solution near the prediction when the fix is the other
-        branch of an ambiguous geometry (see the module docstring)."""
+        branch of an ambiguous geometry (see the module docstring). With ``reach_t`` (the
+        robust track) the gate is that of a manoeuvre's prediction at that time."""
         if not np.all(np.isfinite(fix.position)) or not np.all(np.isfinite(fix.cov)):
             return fix
+        if reach_t is not None:
+            # inside the tight prediction's gate is inside the manoeuvre's: no prediction
+            if _mahalanobis(prior, fix.position, fix.cov) <= self.config.branch_gate:
+                return fix
+            prior = self.tracker.predict(reach_t, self.config.q_manoeuvre) or prior
         state, cov = prior
         xy = state[[0, 2]]
         p = cov[np.ix_([0, 2], [0, 2])]
@@ -241,28 +458,44 @@ class RangingLocalizer:
         los = {a: los_all.get(a, True) for a in ids}
         pos = np.array([self.anchors[a] for a in ids], float).reshape(-1, 3)
         r3 = np.array([links[a][0] for a in ids], float)
-        std = np.array([max(links[a][1], self.config.test.los_std) for a in ids], float)
+        robust = self._robust_on
+        floor = self.config.min_range_std if robust else self.config.test.los_std
+        std = np.array([max(links[a][1], floor) for a in ids], float)
         nlos = np.array([not los[a] for a in ids], bool)
         std = np.where(nlos, max(self.config.nlos_std, 1e-3), std)
         r = horizontal_ranges(r3, pos[:, 2] - self.height)
         prior = self.tracker.predict(t)
         initial = prior[0][[0, 2]] if prior is not None else None
-        if prior is not None and self.config.mitigate and self.config.gate > 0:
+        q_step = None
+        fading = 1.0
+        if prior is not None and robust:
+            std, prior, q_step, fading = self._robust(t, prior, pos[:, :2], r, std, ~nlos, ids)
+        elif prior is not None and self.config.mitigate and self.config.gate > 0:
             std = np.where(self._outliers(prior, pos[:, :2], r, std), self.config.nlos_std, std)
         fix = self.locator.locate(pos[:, :2], r, std, initial=initial)
+        if robust:
+            fix, std = self._snoop(pos[:, :2], r, std, ~nlos, fix, initial)
         if prior is not None and self.config.mitigate and self.config.branch_gate > 0:
-            fix = self._branch(prior, pos[:, :2], r, std, fix)
+            # with the robust track's tight prediction, the branch test asks whether the
+            # local solution is reachable by a manoeuvre, not whether it fits the cruise
+            fix = self._branch(prior, pos[:, :2], r, std, fix, t if robust else None)
         usable = fix.ok or (initial is not None and np.all(np.isfinite(fix.position)))
+        if robust and usable and prior is not None and q_step is None and fading == 1.0:
+            # the fix against the (tight) prediction: its normalised innovation, for the
+            # fix covariance's a-posteriori factor
+            nis = _mahalanobis(prior, fix.position, fix.cov)
+            if math.isfinite(nis):
+                self._nis_fix.append(nis)
         if not self.tracker.initialised and not fix.ok:
             cov3 = np.diag([np.inf, np.inf, np.pi**2 / 3.0])
             pose = (float("nan"), float("nan"), self.height, float("nan"))
             return PoseResult(t=t, pose=pose, cov=cov3, los=los, fix=fix)
         state, p = self.tracker.step(
-            t, fix.position if usable else None, fix.cov if usable else None
+            t, fix.position if usable else None, fix.cov if usable else None, q_step, fading
         )
         speed = math.hypot(state[1], state[3])
         cov3 = np.zeros((3, 3))
-        cov3[:2, :2] = p[np.ix_([0, 2], [0, 2])]
+        cov3[:2, :2] = p[np.ix_([0, 2], [0, 2])] * self._cov_factor()
         if speed > MIN_SPEED_FOR_YAW:
             self._yaw = math.atan2(state[3], state[1])
             # heading of the velocity: var(angle) ~ var(v_perp) / speed²

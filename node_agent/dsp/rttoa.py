@@ -32,8 +32,11 @@ from .ranging import FirstPathRanger
 
 FloatArray = npt.NDArray[np.float64]
 
-#: Floor of the reported range standard deviation, m (sub-sample interpolation limit).
-MIN_RANGE_STD = 0.005
+#: Floor of the reported range standard deviation, m. The reported std is the noise core's
+#: (the per-reception ToA bound at the first path's SNR), which the fusion center's robust
+#: tracker gates against; multipath outliers are its business, not this floor's (it was 5 mm,
+#: ten times the core on the 7 GHz radar, which hid every millimetre outlier).
+MIN_RANGE_STD = 1e-4
 
 
 def single_sided_tof(round_a: float, reply_b: float) -> float:

@@ -46,7 +46,8 @@ class FusionCoreConfig:
     range_gate : drop position estimates farther than ``max_range`` from their sensor. The
         tracker expects no detection there (``p_D = 0``), so a track born of such estimates
         (an echo that reached the sensor by a wall, placed behind the wall or far outside the
-        hall) could never lose weight.
+        hall) could never lose weight. Needed with the nodes' multi-frame integration, which
+        brings such weak echoes above the threshold (docs/integration.md).
     """
 
     frame_lag: int = 2
@@ -54,7 +55,7 @@ class FusionCoreConfig:
     view_margin: float = 0.35
     window_guard: float = WINDOW_GUARD
     blind_zone: bool = False
-    range_gate: bool = False
+    range_gate: bool = True
 
 
 @dataclasses.dataclass(slots=True)

@@ -128,6 +128,8 @@ class GaussianCfarDetector:
             valid, self.threshold_factor**2, np.inf
         )
         self._k2 = k2
+        # the bins searched, (rows, m): rows 1 until the first frame tells n_rx
+        self._searched = np.isfinite(k2[:, self._half : self._width - self._half])
 
     def reset(self) -> None:
         """Forget the noise statistics."""
@@ -149,9 +151,9 @@ class GaussianCfarDetector:
         if self._mean is not None:
             mean = self._mean[:, half : width - half]
             power = power + mean * mean
-        searched = np.isfinite(self._k2[:, half : width - half])
-        if searched.shape[0] != power.shape[0]:
-            searched = np.broadcast_to(searched, power.shape)
+        searched = self._searched
+        if searched.shape != power.shape:
+            searched = self._searched = np.ascontiguousarray(np.broadcast_to(searched, power.shape))
         return power, searched
 
     def step(self, y: npt.NDArray) -> tuple[tuple[FloatArray, ...], tuple[FloatArray, ...]]:

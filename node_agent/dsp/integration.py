@@ -47,7 +47,8 @@ class NoncoherentIntegrator:
     :math:`\\theta\\, P^{-1}(a, 1 - P_{fa})` (Richards, *Fundamentals of Radar Signal
     Processing*, 2nd ed., Sec. 6.3: non-coherent integration, the square-law detector).
     Crossings are reduced to local maxima of :math:`T_k` at least one pulse width apart,
-    refined to sub-sample range by a parabola through :math:`\\sqrt{T}`.
+    refined to sub-sample range by a parabola through :math:`\\sqrt{T}`, in the compiled
+    kernel :func:`node_agent.dsp.kernels.integrated_peaks`.
 
     Beyond the CoLOR chapter, whose CFAR decides per frame; the node keeps the chapter's
     single-frame detections and adds these (:class:`~node_agent.dsp.pipeline.NodeDsp`).
@@ -88,11 +89,17 @@ class NoncoherentIntegrator:
         shape, scale = (self.frames, 1.0) if self.complex_input else (0.5 * self.frames, 2.0)
         self.threshold = float(gammainccinv(shape, pfa) * scale)
         self._half = max(1, round(pulse_width / abs(self._step)))
+        # imported here: numba's import and the kernel's (cached) compile are paid only by
+        # nodes that integrate
+        from . import kernels
+
+        self._kernel = kernels.integrated_peaks
         self.reset()
 
     def reset(self) -> None:
         """Forget the frames summed so far."""
         self._buf: npt.NDArray[np.float32] | None = None
+        self._padded = np.zeros((0, 0), dtype=np.float32)
         self._next = 0
         self._count = 0
 
@@ -122,40 +129,73 @@ class NoncoherentIntegrator:
             Receiver of each detection.
         """
         n_rx, m = y.shape
+        half = self._half
         if self._buf is None or self._buf.shape[1:] != (n_rx, m):
             self._buf = np.zeros((self.frames, n_rx, m), dtype=np.float32)
+            # the running sum lives inside a zero-padded array, so that a crossing's
+            # neighbourhood (flat index + offsets) needs no clipping at the window's edges
+            self._padded = np.zeros((n_rx, m + 2 * half), dtype=np.float32)
             self._next = self._count = 0
+        total = self._padded[:, half : half + m]
         p = self._buf[self._next]
+        # running sum: the oldest frame out, the new one in (a handful of array passes,
+        # whatever N); recomputed from the buffer once per 64 frames against float drift
+        total -= p
         if self.complex_input:
             np.multiply(y.real, y.real, out=p)
             p += y.imag * y.imag
         else:
             np.multiply(y, y, out=p)
         p /= noise_power
-        p[~searched] = 0.0
+        total += p
         self._next = (self._next + 1) % self.frames
-        self._count = min(self._count + 1, self.frames)
+        self._count += 1
+        if self._count % 64 == 0:
+            self._buf.sum(axis=0, dtype=np.float32, out=total)
         if self._count < self.frames or m == 0:
             return _EMPTY
-        total = self._buf.sum(axis=0, dtype=np.float32)
-        idx = np.flatnonzero(total > self.threshold)
-        if idx.size == 0:
-            return _EMPTY
-        half = self._half
-        # a crossing is a peak when it is the first maximum within one pulse width of its row
-        padded = np.zeros((n_rx, m + 2 * half), dtype=np.float32)
-        padded[:, half : half + m] = total
-        rows, cols = np.divmod(idx, m)
-        flat = rows * (m + 2 * half) + cols + half
-        nb = padded.ravel()[flat[:, None] + np.arange(-half, half + 1)]
-        peak = nb.argmax(axis=1) == half
-        rows, cols, nb = rows[peak], cols[peak], nb[peak]
-        env = np.sqrt(nb[:, half - 1 : half + 2].astype(np.float64))
-        a_m, a_0, a_p = env.T
-        den = a_m - 2.0 * a_0 + a_p
-        frac = 0.5 * self._step * (a_m - a_p) / np.minimum(den, -1e-300)
-        amp = np.sqrt(nb[:, half].astype(np.float64) / self.frames * noise_power[rows, cols])
-        return self._ranges[cols] + frac, amp, rows.astype(np.intp)
+        return self._kernel(
+            self._padded,
+            searched,
+            noise_power,
+            self.threshold,
+            half,
+            self.frames,
+            self._ranges,
+            self._step,
+        )
+
+
+def integrated_peaks_reference(
+    padded: npt.NDArray[np.float32],
+    searched: npt.NDArray[np.bool_],
+    noise_power: npt.NDArray[np.float32],
+    threshold: float,
+    half: int,
+    frames: int,
+    ranges: FloatArray,
+    step: float,
+) -> tuple[FloatArray, FloatArray, npt.NDArray[np.intp]]:
+    """The numpy form of :func:`node_agent.dsp.kernels.integrated_peaks` (the reference of
+    its test): peaks of the padded sums ``padded`` above ``threshold``."""
+    m = searched.shape[1]
+    total = padded[:, half : half + m]
+    idx = np.flatnonzero(total > threshold)
+    idx = idx[searched.ravel()[idx]]
+    if idx.size == 0:
+        return _EMPTY
+    # a crossing is a peak when it is the first maximum within one pulse width of its row
+    rows, cols = np.divmod(idx, m)
+    flat = rows * (m + 2 * half) + cols + half
+    nb = padded.ravel()[flat[:, None] + np.arange(-half, half + 1)]
+    peak = nb.argmax(axis=1) == half
+    rows, cols, nb = rows[peak], cols[peak], nb[peak]
+    env = np.sqrt(np.maximum(nb[:, half - 1 : half + 2], 0.0).astype(np.float64))
+    a_m, a_0, a_p = env.T
+    den = a_m - 2.0 * a_0 + a_p
+    frac = 0.5 * step * (a_m - a_p) / np.minimum(den, -1e-300)
+    amp = np.sqrt(nb[:, half].astype(np.float64) / frames * noise_power[rows, cols])
+    return ranges[cols] + frac, amp, rows.astype(np.intp)
 
 
 def merge_detections(

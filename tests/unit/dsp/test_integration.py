@@ -26,6 +26,11 @@ def test_frames_fit_one_pulse_width():
     assert integration_frames(299792458.0 / 3.5e9, 25.0, 2.0, 8) == 1
     assert integration_frames(0.2, 0.0, 2.0, 8) == 1  # rate unknown: off
     assert integration_frames(0.2, 40.0, 0.0, 8) == 1  # off by configuration
+    # the default walker (2.5 m/s of bistatic range): 3 frames here, off for the 3.5 GHz
+    # M-sequence radar at 50 frames/s
+    rate = NodeDspConfig().integration_range_rate
+    assert integration_frames(COMPLEX.pulse_range_width, 40.0, rate, 8) == 3
+    assert integration_frames(299792458.0 / 3.5e9, 50.0, rate, 8) == 1
 
 
 @pytest.mark.parametrize("complex_input", [False, True])
@@ -138,6 +143,36 @@ def test_node_dsp_detects_a_weak_far_echo_more_often_with_integration(rng):
                 hits += sum(np.any(np.abs(res.ranges[c] - truth) < 0.3) for c in (0, 1))
         return hits / (2 * (len(frames) - 60))
 
-    off = hit_rate(NodeDspConfig())
-    on = hit_rate(NodeDspConfig(integration_range_rate=2.0))
+    off = hit_rate(NodeDspConfig(integration_range_rate=0.0))
+    on = hit_rate(NodeDspConfig())  # the default: 3 frames for this band and rate
     assert on > off + 0.1
+
+
+def test_peak_kernel_matches_numpy_reference():
+    """Flat tops (one peak, the first), peaks at the window's ends, bins not searched."""
+    from node_agent.dsp import kernels
+    from node_agent.dsp.integration import integrated_peaks_reference
+
+    rng = np.random.default_rng(7)
+    half, m, frames = 3, 400, 4
+    ranges = 5.0 + 0.07 * np.arange(m)
+    found = 0
+    for k in range(40):
+        padded = np.zeros((2, m + 2 * half), dtype=np.float32)
+        padded[:, half:-half] = rng.gamma(frames, size=(2, m)).astype(np.float32)
+        padded[0, half + 100 + k : half + 102 + k] = 40.0  # flat top
+        padded[1, half] = 50.0  # first bin of the window
+        padded[1, -half - 1] = 45.0  # last bin
+        searched = np.ones((2, m), dtype=bool)
+        searched[0, :20] = False
+        padded[0, half + 5] = 60.0  # not searched: never reported
+        power = rng.uniform(0.5, 2.0, (2, m)).astype(np.float32)
+        args = (searched, power, 11.0, half, frames, ranges, 0.07)
+        got = kernels.integrated_peaks(padded, *args)
+        want = integrated_peaks_reference(padded, *args)
+        assert got[2].tolist() == want[2].tolist(), k
+        np.testing.assert_allclose(got[0], want[0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-12)
+        assert not np.any(np.abs(got[0][got[2] == 0] - ranges[5]) < 0.01)
+        found += int(np.any(np.abs(got[0] - ranges[100 + k] - 0.035) < 1e-9))
+    assert found == 40

@@ -43,6 +43,11 @@ class FusionCoreConfig:
     blind_zone : give the tracker each sensor's blind zone (``SensorScan.min_range``, no
         detection expected nearer than half the first measurable bistatic range). Off by
         default: measured worse on the outside proxy recordings (docs/blind_zone.md).
+    range_gate : drop position estimates farther than ``max_range`` from their sensor. The
+        tracker expects no detection there (``p_D = 0``), so a track born of such estimates
+        (an echo that reached the sensor by a wall, placed behind the wall or far outside the
+        hall) could never lose weight. Needed with the nodes' multi-frame integration, which
+        brings such weak echoes above the threshold (docs/integration.md).
     """
 
     frame_lag: int = 2
@@ -50,6 +55,7 @@ class FusionCoreConfig:
     view_margin: float = 0.35
     window_guard: float = WINDOW_GUARD
     blind_zone: bool = False
+    range_gate: bool = True
 
 
 @dataclasses.dataclass(slots=True)
@@ -151,6 +157,12 @@ class FusionCore:
         cov = det.cov
         if cov is None:
             cov = np.broadcast_to(np.eye(2) * 0.01, (positions.shape[0], 2, 2))
+        max_range = self._max_range(self.nodes[det.src])
+        if self.config.range_gate and positions.shape[0]:
+            d = positions - origin
+            near = np.einsum("ij,ij->i", d, d) <= max_range * max_range
+            if not near.all():
+                positions, cov = positions[near], cov[near]
         self._pending[det.frame].append(
             SensorScan(
                 sensor=det.src,
@@ -160,7 +172,7 @@ class FusionCore:
                 origin=origin,
                 boresight=boresight,
                 beamwidth=beamwidth,
-                max_range=self._max_range(self.nodes[det.src]),
+                max_range=max_range,
                 min_range=self._min_range(self.nodes[det.src]),
             )
         )

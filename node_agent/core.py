@@ -25,7 +25,13 @@ def radar_params(info: NodeInfo) -> RadarParams:
     r = info.radar
     try:
         return RadarParams(
-            fs=r.fs, n=r.n, t0=r.t0, f_low=r.f_low, f_high=r.f_high, fc=float(r.fc or 0.0)
+            fs=r.fs,
+            n=r.n,
+            t0=r.t0,
+            f_low=r.f_low,
+            f_high=r.f_high,
+            fc=float(r.fc or 0.0),
+            rate=float(r.rate),
         )
     except ValueError as exc:
         raise NodeConfigError(f"node {info.src}: {exc}") from None

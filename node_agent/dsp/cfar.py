@@ -128,11 +128,33 @@ class GaussianCfarDetector:
             valid, self.threshold_factor**2, np.inf
         )
         self._k2 = k2
+        # the bins searched, (rows, m): rows 1 until the first frame tells n_rx
+        self._searched = np.isfinite(k2[:, self._half : self._width - self._half])
 
     def reset(self) -> None:
         """Forget the noise statistics."""
         self._mean = None
         self._var = None
+
+    def noise_power(self) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]] | None:
+        """The expected power :math:`E_0 |y_k|^2` of each bin without a target, and the bins
+        searched, both shape (n_rx, m), after the last :meth:`detect`; None before the
+        statistics exist.
+
+        Real samples: the tracked variance :math:`\\sigma_k^2`. Complex baseband: the
+        magnitude's tracked variance plus its squared mean, :math:`\\sigma_k^2 + \\mu_k^2`.
+        """
+        if self._var is None:
+            return None
+        half, width = self._half, self._width
+        power = self._var[:, half : width - half]
+        if self._mean is not None:
+            mean = self._mean[:, half : width - half]
+            power = power + mean * mean
+        searched = self._searched
+        if searched.shape != power.shape:
+            searched = self._searched = np.ascontiguousarray(np.broadcast_to(searched, power.shape))
+        return power, searched
 
     def step(self, y: npt.NDArray) -> tuple[tuple[FloatArray, ...], tuple[FloatArray, ...]]:
         """Detect echoes in one background-subtracted impulse-response matrix.

@@ -42,6 +42,8 @@ class RadarParams:
         Band edges in Hz (0 and 3.5e9 for the baseband M-sequence radar).
     fc : float
         Carrier in Hz of complex-baseband impulse responses, 0 for real ones.
+    rate : float
+        Impulse responses per second of one link (``node_info.radar.rate``), Hz; 0 unknown.
     """
 
     fs: float
@@ -50,6 +52,7 @@ class RadarParams:
     f_low: float
     f_high: float
     fc: float = 0.0
+    rate: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.fs > 0 and self.n > 0 and self.f_high > self.f_low >= 0):

@@ -498,3 +498,78 @@ def cfar_detect_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pr
         for c in range(half, width - half):
             d2[c] = zero
     return out_r[:n_out].copy(), out_a[:n_out].copy(), out_c[:n_out].copy()
+
+
+@_njit(
+    "Tuple((float64[:], float64[:], intp[:]))"
+    "(float32[:, :], boolean[:, :], float32[:, :], float64, intp, intp, float64[:], float64)"
+)
+def integrated_peaks(
+    padded, searched, noise_power, threshold, half, frames, ranges, step
+):  # pragma: no cover
+    """Peaks of the non-coherently integrated power above its threshold, one pass per row.
+
+    The detection step of :class:`~node_agent.dsp.integration.NoncoherentIntegrator`
+    (:func:`~node_agent.dsp.integration.integrated_peaks_reference` is its numpy form): a
+    searched bin whose sum :math:`T_k` exceeds ``threshold`` is a peak when it is the first
+    maximum within ``half`` bins; its range is refined by the parabola through
+    :math:`\\sqrt{T}` at the peak and its two neighbours, its amplitude is the RMS echo
+    amplitude :math:`\\sqrt{T_k P_k / N}`.
+
+    Parameters
+    ----------
+    padded : ndarray, float32, shape (n_rx, m + 2 half)
+        The sums :math:`T`, with ``half`` zero columns on each side.
+    searched : ndarray, bool, shape (n_rx, m)
+        Bins searched.
+    noise_power : ndarray, float32, shape (n_rx, m)
+        Expected power :math:`P_k` of each bin without a target.
+    threshold : float
+        Threshold on :math:`T`.
+    half : int
+        Half a pulse width in bins.
+    frames : int
+        :math:`N`.
+    ranges : ndarray, float64, shape (m,)
+        Range of each bin, m.
+    step : float
+        Range step, m.
+
+    Returns
+    -------
+    ranges, amplitudes : ndarray, float64, shape (k,)
+        Sorted by (row, range).
+    rows : ndarray, intp, shape (k,)
+    """
+    n_rx, m = searched.shape
+    out_r = np.empty(n_rx * m)
+    out_a = np.empty(n_rx * m)
+    out_c = np.empty(n_rx * m, dtype=np.intp)
+    n_out = 0
+    for row in range(n_rx):
+        for i in range(m):
+            c = i + half
+            centre = padded[row, c]
+            if not (centre > threshold and searched[row, i]):
+                continue
+            peak = True
+            for j in range(c - half, c):
+                if not padded[row, j] < centre:
+                    peak = False
+                    break
+            if peak:
+                for j in range(c + 1, c + half + 1):
+                    if padded[row, j] > centre:
+                        peak = False
+                        break
+            if not peak:
+                continue
+            a_m = math.sqrt(max(np.float64(padded[row, c - 1]), 0.0))
+            a_0 = math.sqrt(np.float64(centre))
+            a_p = math.sqrt(max(np.float64(padded[row, c + 1]), 0.0))
+            den = a_m - 2.0 * a_0 + a_p
+            out_r[n_out] = ranges[i] + 0.5 * step * (a_m - a_p) / min(den, -1e-300)
+            out_a[n_out] = math.sqrt(np.float64(centre) / frames * np.float64(noise_power[row, i]))
+            out_c[n_out] = row
+            n_out += 1
+    return out_r[:n_out].copy(), out_a[:n_out].copy(), out_c[:n_out].copy()

@@ -38,13 +38,12 @@ FLOOR_COUNT = 0.25
 # Configurations where a goal is not met yet, and why (issue 2 closing note). A listed
 # configuration that misses a goal is reported as xfail with its figures; one not listed fails.
 KNOWN_GAPS = {
-    "hall20x12_6s_3to5p_complex": "correct count about 48 %, mean OSPA 0.42 m: a person is "
-    "missed in about 15 % of the person-updates, and with 4-5 people one miss spoils the "
-    "update's count. The missed people walk near a wall close to a sensor: inside its blind "
-    "zone (the cropped window, t0 = 14.6 ns, hides everyone within 2.2 m) or just beyond it, "
-    "where the echo is cut at the window start, and seen obliquely (1.2-1.5 rad off boresight) "
-    "and from 10-15 m by the others, which give an estimate within 0.7 m in well under half "
-    "the frames. New labels then die in the empty frames before they are confirmed",
+    "hall20x12_6s_3to5p_complex": "correct count about 67 % (mean OSPA 0.37 m meets its goal): "
+    "a person is still missed in some updates, and with 4-5 people one miss spoils the "
+    "update's count. People 9-16 m from every sensor give echoes a few noise standard "
+    "deviations high; the nodes' 3-frame integration (docs/integration.md) raised the far "
+    "sensors' detections but some people, seen obliquely and from 10-15 m, still go "
+    "unseen for stretches of frames and their tracks die before they are re-confirmed",
 }
 
 CONFIGS = {

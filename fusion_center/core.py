@@ -67,6 +67,7 @@ class FusionCounters:
     late: int = 0
     unknown_node: int = 0
     updates: int = 0
+    beyond_range: int = 0  # position estimates dropped by ``range_gate``
 
 
 class FusionCore:
@@ -162,6 +163,7 @@ class FusionCore:
             d = positions - origin
             near = np.einsum("ij,ij->i", d, d) <= max_range * max_range
             if not near.all():
+                self.counters.beyond_range += int(np.count_nonzero(~near))
                 positions, cov = positions[near], cov[near]
         self._pending[det.frame].append(
             SensorScan(

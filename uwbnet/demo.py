@@ -343,6 +343,7 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             "nodes": n_nodes,
             "fusion_updates": fusion.core.counters.updates,
             "late_detections": fusion.core.counters.late,
+            "estimates_beyond_range": fusion.core.counters.beyond_range,
             "decode_errors": fusion.decode_errors,
             "acquired": sum(h.last_status.acquired for h in health.values() if h.last_status),
             "late_slots": sum(h.last_status.late_slots for h in health.values() if h.last_status),

@@ -50,3 +50,4 @@ def test_estimates_beyond_max_range_are_dropped(range_gate: bool) -> None:
     want = positions[:1] if range_gate else positions
     np.testing.assert_allclose(scan.positions, want, atol=0.5)
     assert scan.cov.shape == (want.shape[0], 2, 2)
+    assert core.counters.beyond_range == (1 if range_gate else 0)

@@ -35,6 +35,9 @@ class NodeDspConfig:
         Forgetting factor of the CFAR per-bin noise mean/variance averages.
     noise_censor : float
         Fraction of ``noise_alpha`` used in bins that cross the threshold.
+    noise_clip_sigma : float
+        Squared deviations enter the CFAR's variance average clipped at this many standard
+        deviations (:class:`GaussianCfarDetector` ``clip_sigma``).
     pfa : float
         CFAR false-alarm probability per range sample. 1e-3 rather than a stricter value:
         far people's echoes sit only 3-4 noise standard deviations high, and the false alarms
@@ -119,6 +122,7 @@ class NodeDspConfig:
     background_alpha: float = 0.05
     noise_alpha: float = 0.005
     noise_censor: float = 0.1
+    noise_clip_sigma: float = 3.0
     pfa: float = 1e-3
     min_range_guard: float = 0.5
     max_range: float | None = None
@@ -309,6 +313,7 @@ class NodeDsp:
             alpha=self.config.noise_alpha,
             complex_input=complex_input,
             censor=self.config.noise_censor,
+            clip_sigma=self.config.noise_clip_sigma,
         )
 
     def _make_filter(self, complex_input: bool) -> BandMatchedFilter | None:

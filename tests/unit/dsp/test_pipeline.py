@@ -216,3 +216,12 @@ def test_range_offset_moves_front_surface_echoes_to_body_centre(rng):
                 errs.append(np.min(np.linalg.norm(res.positions - centre, axis=1)))
         errors[offset] = np.median(errs)
     assert errors[0.3] < 0.1 < errors[0.0]
+
+
+@pytest.mark.parametrize("clip", [2.0, 3.0])
+def test_noise_clip_reaches_the_cfar(rng, clip):
+    # the config's clip is the detector's (the CFAR is built at the first impulse response)
+    g = bat_geometry()
+    dsp = NodeDsp(g, M_SEQUENCE, NodeDspConfig(noise_clip_sigma=clip))
+    dsp.process(0.0, scene_ir(M_SEQUENCE, g, [], rng))
+    assert dsp._cfar is not None and dsp._cfar._clip2 == np.float32(clip**2)

@@ -8,6 +8,12 @@ robot) and runs one mapper per robot. Each processed acquisition publishes the r
 ``uwbnet/{net}/fusion/poses`` (world frame: the map frame is the robot's first pose, anchored
 at the ``pose`` of its first ``node_info``, or the ``pose`` of its first ``ir`` when present)
 and every ``map_every`` acquisitions the map on ``uwbnet/{net}/fusion/map`` (kind ``map``).
+
+While the filter holds a stop back for a relocalisation (after a long drive, up to one stop),
+the pose of each held acquisition is published at once with the odometry's prediction
+(``MapperConfig.provisional_poses``); the acquisition that ends the hold publishes the
+relocalised pose. The revised poses of the acquisitions already published are not sent again,
+so a robot's poses keep increasing ``t``.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import numpy as np
 import zenoh
 
 from fusion_center.mapping import EchoSlamMapper, MapperOutput, SlamConfig, SlamMap
-from fusion_center.mapping.pipeline import array_geometry
+from fusion_center.mapping.pipeline import MapperConfig, array_geometry
 from protocol import Ir, Map, NodeInfo, PoseEstimate, Poses, ProtocolError, decode, keys
 from protocol.transport import FifoChannel, RingChannel, stop_worker
 
@@ -57,6 +63,7 @@ class _Robot:
     mapper: EchoSlamMapper | None = None
     origin: tuple[float, float, float, float] | None = None
     processed: int = 0
+    last_t: float = -math.inf
 
 
 def _compose(origin: tuple[float, ...], pose: np.ndarray) -> tuple[float, float, float, float]:
@@ -176,6 +183,7 @@ class MappingService:
                 fs=r.fs,
                 t0=r.t0,
                 bandwidth=r.f_high - r.f_low,
+                config=MapperConfig(provisional_poses=True),
                 slam=SlamConfig(
                     n_particles=self.config.particles, association=self.config.association
                 ),
@@ -186,6 +194,9 @@ class MappingService:
 
     def _publish_pose(self, node: str, robot: _Robot, out: MapperOutput) -> None:
         assert robot.origin is not None and robot.mapper is not None
+        if out.t <= robot.last_t:
+            return  # the revision of a pose published provisionally during a hold
+        robot.last_t = out.t
         pose = _compose(robot.origin, out.estimate.pose)
         est = PoseEstimate(pose=pose, cov=out.estimate.cov.tolist(), los={})
         msg = Poses(src=self.config.service_id, seq=self._next("poses"), t=out.t, poses={node: est})

@@ -309,7 +309,12 @@ def cmd_map(args: argparse.Namespace) -> int:
     scenario = _load_scenario(args.eval) if args.eval else None
     png = str(_out_path(args.png)) if args.png else None
     run = partial(
-        map_recording, particles=args.particles, robot=args.robot, png=png, scenario=scenario
+        map_recording,
+        particles=args.particles,
+        seed=args.seed,
+        robot=args.robot,
+        png=png,
+        scenario=scenario,
     )
     return _run_offline(args, "mapping", run)
 
@@ -793,6 +798,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="data association (6.3): echo groups (measurement space) or per pair (state space)",
     )
     mp.add_argument("--particles", type=int, default=40, help="particles (40)")
+    mp.add_argument("--seed", type=int, default=0, help="seed of the particle filter (0)")
     mp.add_argument("--robot", help="robot node id (default: the first mobile node with ir)")
     mp.add_argument("--eval", metavar="SCENARIO", help="score the map against this scenario")
     mp.set_defaults(func=cmd_map)

@@ -62,7 +62,9 @@ def robot_geometry(info: NodeInfo, rx: tuple[str, ...]) -> np.ndarray:
         raise MappingError(f"robot {info.src}: {exc}") from None
 
 
-def _make_mapper(info: NodeInfo, rx: tuple[str, ...], particles: int, association: str) -> Any:
+def _make_mapper(
+    info: NodeInfo, rx: tuple[str, ...], particles: int, association: str, seed: int
+) -> Any:
     from fusion_center.mapping import EchoSlamMapper, SlamConfig
 
     r = info.radar
@@ -71,7 +73,7 @@ def _make_mapper(info: NodeInfo, rx: tuple[str, ...], particles: int, associatio
         fs=r.fs,
         t0=r.t0,
         bandwidth=r.f_high - r.f_low,
-        slam=SlamConfig(n_particles=particles, association=association),
+        slam=SlamConfig(n_particles=particles, association=association, seed=seed),
     )
 
 
@@ -81,6 +83,7 @@ def map_recording(
     *,
     method: str = "measurement",
     particles: int = 40,
+    seed: int = 0,
     robot: str | None = None,
     png: str | os.PathLike[str] | None = None,
     scenario: Any = None,
@@ -88,7 +91,8 @@ def map_recording(
 ) -> MapStats:
     """Map a robot recording; write ``out`` (map.json) and optionally ``png``.
 
-    ``method`` is the data association (``measurement`` or ``state``, Section 6.3). With
+    ``method`` is the data association (``measurement`` or ``state``, Section 6.3); ``seed``
+    seeds the particle filter (a run's figures scatter with it). With
     ``scenario`` (a loaded scenario) and ``truth`` messages in the recording, ``stats.eval``
     holds the map's errors (:func:`uwbnet.map_eval.evaluate_map`). Outputs appear only when
     complete. Bad messages are counted in ``rejected`` and logged.
@@ -126,7 +130,7 @@ def map_recording(
                 continue
             if not stats.robot:
                 stats.robot = msg.src
-                mapper = _make_mapper(info, msg.rx, particles, method)
+                mapper = _make_mapper(info, msg.rx, particles, method, seed)
             elif msg.src != stats.robot:
                 continue
             if msg.h.shape[0] != 2 or not np.all(np.isfinite(msg.h)):
@@ -159,6 +163,7 @@ def map_recording(
         "frame": "first pose of the robot",
         "association": method,
         "particles": particles,
+        "seed": seed,
     }
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)

@@ -74,6 +74,12 @@ class MapperConfig:
         Acquisitions the measurement-space association waits for a group to confirm.
     drive_reset : float
         Odometry translation, m, after which the echo tracks restart (the robot drove).
+    provisional_poses : bool
+        While the filter holds a stop back for a relocalisation (up to one stop, about 2.4 s
+        on room_pillar), also output each held acquisition at once with the odometry's
+        prediction, marked ``provisional`` (a live view then never goes without a pose); the
+        revised estimates still follow after the replay. Off for offline use, where the
+        trajectory holds only the revised estimates.
     """
 
     min_range: float = 1.2
@@ -87,16 +93,20 @@ class MapperConfig:
     confirm: int = 3
     lag: int = 2
     drive_reset: float = 0.1
+    provisional_poses: bool = False
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MapperOutput:
     """The filter's state after one acquisition: time ``t`` (s) and the pose estimate in the
-    frame of the robot's first pose."""
+    frame of the robot's first pose. ``provisional``: the odometry's prediction of an
+    acquisition held back for a relocalisation; its revised estimate comes out later with the
+    same ``t`` (see ``MapperConfig.provisional_poses``)."""
 
     t: float
     estimate: PoseEstimate2D
     pairs: int
+    provisional: bool = False
 
 
 class EchoSlamMapper:
@@ -145,6 +155,8 @@ class EchoSlamMapper:
         self._last_t: float | None = None
         # processed acquisitions whose output waits for a relocalisation: (t, pairs)
         self._pending: list[tuple[float, int]] = []
+        # how many of them already went out as provisional outputs
+        self._provisional_sent = 0
         self.pairs_used = 0
         self.pairs_seen = 0
 
@@ -222,10 +234,20 @@ class EchoSlamMapper:
             for (t, n), e in zip(self._pending, f.revised, strict=False)
         ]
         del self._pending[: len(f.revised)]
+        self._provisional_sent = max(self._provisional_sent - len(f.revised), 0)
         f.revised.clear()
         if not f.holding:
             out += [MapperOutput(t=t, estimate=f.estimate(), pairs=n) for t, n in self._pending]
             self._pending.clear()
+            self._provisional_sent = 0
+        elif self.config.provisional_poses and self._provisional_sent < len(self._pending):
+            # the filter's estimate while it holds is the odometry's prediction
+            est = f.estimate()
+            out += [
+                MapperOutput(t=t, estimate=est, pairs=n, provisional=True)
+                for t, n in self._pending[self._provisional_sent :]
+            ]
+            self._provisional_sent = len(self._pending)
         return out
 
     def map(self, min_hits: int = 8) -> SlamMap:

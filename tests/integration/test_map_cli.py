@@ -27,11 +27,13 @@ def test_map_writes_walls_corners_points_and_trajectory(
     proc = uwbnet(
         "map", str(robot_recording), "--out", str(out), "--png", str(png),
         "--particles", "20", "--association", "state", "--eval", "corridor_L_sparse",
+        "--seed", "3",
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     stats = last_json(proc)
     doc = json.loads(out.read_text())
     assert set(doc) >= {"walls", "corners", "points", "trajectory"}
+    assert doc["seed"] == 3
     assert stats["ir"] == 120 and len(doc["trajectory"]) == 120
     assert all(len(w) == 4 for w in doc["walls"]) and len(doc["walls"]) >= 2
     assert png.stat().st_size > 1000

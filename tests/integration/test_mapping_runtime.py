@@ -79,3 +79,6 @@ def test_robot_ir_gives_poses_and_maps(hub_endpoint: str, robot_messages: list[o
     assert np.allclose(first[:2], irs[0].pose[:2], atol=0.05)
     last = poses[-1].poses[info.src].pose
     assert np.hypot(last[0] - irs[-1].pose[0], last[1] - irs[-1].pose[1]) < 1.0
+    # one pose per acquisition, in time order (a relocalisation's revisions are not re-sent)
+    ts = [m.t for m in poses]
+    assert ts == sorted(set(ts))

@@ -125,3 +125,19 @@ def test_a_stop_with_no_mature_landmark_in_reach_is_replayed_on_odometry() -> No
     assert relocalisations == 0
     assert revised == 30  # held back and replayed all the same
     assert pos < 0.3
+
+
+def test_the_relocalisation_matches_with_its_own_range_noise() -> None:
+    from fusion_center.mapping import RbpfSlam, SlamConfig
+
+    slam = RbpfSlam(ANTENNAS, SlamConfig(range_sigma=0.03, relocalise_sigma=0.12))
+    assert slam.relocaliser.range_sigma == 0.12
+    # the explained test counts pairs within about 2.4 sigma of the match's noise
+    lmap = MatchMap(kind=np.array([WALL]), state=np.array([[0.0, 3.0]]), log_weight=np.zeros(1))
+    pose = np.zeros(3)
+    rel = np.zeros((1, 3))
+    near = expected_ranges(lmap, np.zeros((1, 2)), ANTENNAS[None, 1:], np.zeros(1), 0.5)[0][0]
+    pairs = [near + np.array([[0.1, 0.1]])]  # 0.14 m off in the 2-D range space
+    assert slam.relocaliser.explained(pose, rel, pairs, lmap) == 1
+    strict = RbpfSlam(ANTENNAS, SlamConfig(relocalise_sigma=0.05)).relocaliser
+    assert strict.explained(pose, rel, pairs, lmap) == 0

@@ -1,0 +1,117 @@
+"""EchoSlamMapper's output bookkeeping around a relocalisation hold."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fusion_center.mapping import EchoSlamMapper, MapperConfig
+from fusion_center.mapping.rbpf import PoseEstimate2D
+
+ANTENNAS = np.array([[0.0, 0.0], [0.0, 0.5], [0.0, -0.5]])
+
+
+class _HoldingFilter:
+    """Duck-typed RbpfSlam that holds acquisitions ``hold`` back and revises them when the
+    last one arrives; its estimate is the acquisition count (x) and 1 once revised (y)."""
+
+    def __init__(self, config: object, hold: range) -> None:
+        self.config = config
+        self.hold = hold
+        self.k = 0
+        self.revised: list[PoseEstimate2D] = []
+
+    @property
+    def holding(self) -> bool:
+        return (self.k - 1) in self.hold[:-1]  # after the update of a held acquisition
+
+    def predict(self, dt: float, odometry: object = None) -> None:
+        pass
+
+    def update(self, z: object, groups: object = None) -> None:
+        if self.k == self.hold[-1]:
+            self.revised += [self._est(k, 1.0) for k in self.hold]
+        self.k += 1
+
+    def forget_groups(self, keep: object) -> None:
+        pass
+
+    def flush(self) -> None:
+        pass
+
+    def estimate(self) -> PoseEstimate2D:
+        return self._est(self.k - 1, 0.0)
+
+    @staticmethod
+    def _est(k: int, revised: float) -> PoseEstimate2D:
+        return PoseEstimate2D(pose=np.array([float(k), revised, 0.0]), cov=np.eye(3))
+
+
+def _outputs(provisional: bool) -> list:
+    mapper = EchoSlamMapper(
+        ANTENNAS,
+        fs=32.4e9,
+        t0=0.0,
+        bandwidth=8.9e9,
+        config=MapperConfig(warmup=0, lag=0, provisional_poses=provisional),
+    )
+    mapper.filter = _HoldingFilter(mapper.filter.config, range(3, 7))  # type: ignore[assignment]
+    rng = np.random.default_rng(0)
+    out = []
+    for k in range(10):
+        got = mapper.step(float(k), rng.normal(0.0, 1e-3, (2, 512)).astype(np.float32))
+        out.append(got)
+    return out
+
+
+def test_issue_8_held_acquisitions_get_a_provisional_pose_at_once() -> None:
+    per_step = _outputs(provisional=True)
+    # every acquisition has an output at once: the held ones (3-6) provisional, with the
+    # odometry's prediction (the filter's estimate while it holds)
+    for k, got in enumerate(per_step):
+        live = [o for o in got if o.t == float(k)]
+        assert len(live) == 1, (k, got)
+        assert live[0].provisional == (k in (3, 4, 5))
+        assert live[0].estimate.pose[1] == (1.0 if k == 6 else 0.0)
+    # the hold's end brings the revised estimates of all held acquisitions, not provisional
+    revised = [o for o in per_step[6] if not o.provisional]
+    assert [o.t for o in revised] == [3.0, 4.0, 5.0, 6.0]
+    assert all(o.estimate.pose[1] == 1.0 for o in revised)
+
+
+def test_offline_the_held_acquisitions_come_out_only_revised() -> None:
+    per_step = _outputs(provisional=False)
+    assert [len(g) for g in per_step] == [1, 1, 1, 0, 0, 0, 4, 1, 1, 1]
+    assert not any(o.provisional for g in per_step for o in g)
+    assert [o.t for g in per_step for o in g] == [float(k) for k in range(10)]
+
+
+class _Publisher:
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def put(self, payload: bytes) -> None:
+        self.sent.append(payload)
+
+
+def test_issue_8_the_service_publishes_held_poses_live_and_keeps_time_order() -> None:
+    from fusion_center.mapping_service import MappingConfig, MappingService, _Robot
+    from protocol import Poses, decode
+
+    service = MappingService(None, MappingConfig(map_every=1000))  # type: ignore[arg-type]
+    pub = _Publisher()
+    service._pub_poses = pub
+    robot = _Robot(info=None, origin=(1.0, 2.0, 0.0, 0.0))  # type: ignore[arg-type]
+    robot.mapper = EchoSlamMapper(
+        ANTENNAS, fs=32.4e9, t0=0.0, bandwidth=8.9e9, config=MapperConfig(warmup=0, lag=0)
+    )
+    for got in _outputs(provisional=True):
+        for out in got:
+            service._publish_pose("robot", robot, out)
+    poses = [decode(b) for b in pub.sent]
+    assert all(isinstance(p, Poses) for p in poses)
+    assert [p.t for p in poses] == [float(k) for k in range(10)]
+    # world frame: the origin's offset; the hold's last acquisition carries the revision
+    xs = [p.poses["robot"].pose[0] for p in poses]
+    ys = [p.poses["robot"].pose[1] for p in poses]
+    assert np.allclose(xs, 1.0 + np.arange(10))
+    assert np.allclose(ys, [2.0] * 6 + [3.0] + [2.0] * 3)

@@ -230,17 +230,23 @@ class NodeAgent:
             self._query_schedule()
         return self._pending
 
-    def serve(self, slot: SlotTiming) -> int:
+    def serve(self, slot: SlotTiming, *, late: float | None = None) -> int:
         """Acquire, process and queue the messages of ``slot`` (its start has come), and send
         ``status`` when due. Called from one thread at a time. Returns the number of messages
-        queued for publishing."""
+        queued for publishing.
+
+        ``late`` is how long after it was due the worker began serving (s): by default now
+        minus the slot's start; a :class:`node_agent.group.SlotOrderGroup` that serves a batch
+        of slots together gives the batch's lateness. ``late_slots`` and the
+        ``lateness_ms`` histogram count it."""
         self._pending = None
         queued = self._outbox.received
         if self._last_frame is not None and slot.frame > self._last_frame + 1:
             # The worker fell behind: these frames' slots passed without an acquisition.
             self.counters["dropped"] += slot.frame - self._last_frame - 1
         self._last_frame = slot.frame
-        late = self.clock() - slot.t
+        if late is None:
+            late = self.clock() - slot.t
         if late > slot.duration:
             self.counters["late_slots"] += 1
         self._lateness[bisect.bisect_left(LATENESS_EDGES_MS, late * 1e3)] += 1

@@ -251,8 +251,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
 
     if cfg.nodes < 1 or cfg.people < 0 or cfg.hosts < 1 or cfg.workers < 1:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
-    if cfg.threads not in ("process", "agent"):
-        raise ScaleError(f"--threads must be process or agent, not {cfg.threads!r}")
+    if cfg.threads not in ("process", "agent", "batch"):
+        raise ScaleError(f"--threads must be process, agent or batch, not {cfg.threads!r}")
     if not 0 <= cfg.rt_priority <= 99:
         raise ScaleError("--rt-priority must be 0 (off) to 99")
     if cfg.rt_priority and os.geteuid() != 0:

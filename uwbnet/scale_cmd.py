@@ -62,7 +62,9 @@ class ScaleConfig:
     # "agent": every agent has its own worker and publisher threads; "process": the agents of
     # a node process share one acquisition thread, in slot order (node_agent.group). Measured
     # at load 8-9 (docs/capacity.md, stop 17): "process" lost 2-14x more acquisitions and
-    # saved no CPU, so "agent" stays the default.
+    # saved no CPU, so "agent" stays the default. "batch": one thread per node process serves
+    # the slots of a frame together (node_agent.group, batch_window; docs/capacity.md, sixth
+    # round: less CPU per acquisition, measured only on a loaded machine so far).
     threads: str = "agent"
     # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
     spread_slots: bool = False

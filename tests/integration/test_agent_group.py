@@ -38,7 +38,9 @@ def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-
         time.sleep(0.02)
 
 
-def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
+@pytest.mark.parametrize("batch_window", [0.0, 0.01])
+def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, batch_window):
+    # batch_window 0.01: the agents' slots of a frame served and published together
     network = SimNetwork(load_scenario("foyer3"), seed=7)
     nodes = sorted(network.node_infos())
     assert len(nodes) >= 3
@@ -61,7 +63,7 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
             agents.append(
                 NodeAgent(session, driver, AgentConfig(node=node, net=NET, publish_ir=False))
             )
-        group = SlotOrderGroup(agents)
+        group = SlotOrderGroup(agents, batch_window=batch_window)
         group.start()
         stack.callback(group.stop)
         names = {t.name for t in threading.enumerate()}
@@ -85,6 +87,8 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
     steady = [d for d in dets if d.frame >= dets[0].frame + 5]
     times = [d.t for d in steady]
     assert times == sorted(times)
+    # each slot served once (a batch serves slots before their start)
+    assert len({(d.src, d.frame) for d in steady}) == len(steady)
     # Every node in (nearly) every frame: the nodes join the schedule one by one at first, the
     # last frame may be incomplete, and a loaded machine may make the thread skip a slot.
     last = sorted({d.frame for d in steady})[-31:-1]

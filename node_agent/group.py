@@ -18,8 +18,8 @@ With ``batch_window`` > 0 (``uwbnet scale --threads batch``) the thread serves t
 agents that fall in one frame together, back to back, and the publisher sends their messages
 together: one wake-up of each thread per frame. A process woken from sleep pays for cold caches
 (in a plain loop on this machine an acquisition cost about 0.5 ms more after each sleep than
-back to back), so this cuts the CPU per acquisition of a simulated node process by about a
-quarter (docs/capacity.md, sixth round).
+back to back), so this cuts the CPU per acquisition of a simulated node process by about 40 %
+with 8 nodes per process (docs/capacity.md, sixth round).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ class SlotOrderGroup:
         that start within ``batch_window`` of the earliest are served together, in slot
         order, when the earliest starts, and their messages are published together once the
         last of them has started: one wake-up of each thread per batch instead of one per
-        slot (a simulated node process: a woken process pays for cold caches, about 0.3-0.5
+        slot (a simulated node process: a woken process pays for cold caches, about 0.2-0.5
         ms per wake-up on this machine, docs/capacity.md, sixth round). For simulated
         drivers only, whose acquisition for slot time ``t`` may run before ``t`` (the scene
         at every slot time is known in advance); a radar acquires in real time. Every

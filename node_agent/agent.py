@@ -10,6 +10,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -104,6 +105,7 @@ class NodeAgent:
         # slot state of the worker (NodeAgent._run or a SlotOrderGroup's thread)
         self._pending: SlotTiming | None = None
         self._last_frame: int | None = None
+        self._served_t = -math.inf
         self._last_query = 0.0
         # CPU time (s) of this agent's acquisitions, and (cpu, monotonic) at the last status
         self._cpu_used = 0.0
@@ -224,23 +226,33 @@ class NodeAgent:
         if self._take_schedule():
             self._pending = None
         if self._pending is None and self._schedule is not None and self.tx is not None:
-            self._pending = next_slot(self._schedule, self.tx, self.clock())
+            # after the slot served last: a batch (node_agent.group) may serve a slot before
+            # its start, and that slot must not come round again
+            after = max(self.clock(), self._served_t + 1e-6)
+            self._pending = next_slot(self._schedule, self.tx, after)
         if self._pending is None and time.monotonic() - self._last_query > 1.0:
             self._last_query = time.monotonic()
             self._query_schedule()
         return self._pending
 
-    def serve(self, slot: SlotTiming) -> int:
+    def serve(self, slot: SlotTiming, *, late: float | None = None) -> int:
         """Acquire, process and queue the messages of ``slot`` (its start has come), and send
         ``status`` when due. Called from one thread at a time. Returns the number of messages
-        queued for publishing."""
+        queued for publishing.
+
+        ``late`` is how long after it was due the worker began serving (s): by default now
+        minus the slot's start; a :class:`node_agent.group.SlotOrderGroup` that serves a batch
+        of slots together gives the batch's lateness. ``late_slots`` and the
+        ``lateness_ms`` histogram count it."""
         self._pending = None
+        self._served_t = slot.t
         queued = self._outbox.received
         if self._last_frame is not None and slot.frame > self._last_frame + 1:
             # The worker fell behind: these frames' slots passed without an acquisition.
             self.counters["dropped"] += slot.frame - self._last_frame - 1
         self._last_frame = slot.frame
-        late = self.clock() - slot.t
+        if late is None:
+            late = self.clock() - slot.t
         if late > slot.duration:
             self.counters["late_slots"] += 1
         self._lateness[bisect.bisect_left(LATENESS_EDGES_MS, late * 1e3)] += 1

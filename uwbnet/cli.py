@@ -929,9 +929,10 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--nodes-per-process", type=_count, default=4, help="nodes per process")
     sc.add_argument(
         "--threads",
-        choices=("process", "agent"),
+        choices=("process", "agent", "batch"),
         default="agent",
-        help="one acquisition thread per node agent (default) or per node process",
+        help="one acquisition thread per node agent (default) or per node process; batch: "
+        "one per node process, serving its nodes' slots of a frame together",
     )
     sc.add_argument(
         "--spread-slots",

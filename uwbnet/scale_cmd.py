@@ -62,7 +62,9 @@ class ScaleConfig:
     # "agent": every agent has its own worker and publisher threads; "process": the agents of
     # a node process share one acquisition thread, in slot order (node_agent.group). Measured
     # at load 8-9 (docs/capacity.md, stop 17): "process" lost 2-14x more acquisitions and
-    # saved no CPU, so "agent" stays the default.
+    # saved no CPU, so "agent" stays the default. "batch": one thread per node process serves
+    # the slots of a frame together (node_agent.group, batch_window; docs/capacity.md, sixth
+    # round: less CPU per acquisition, measured only on a loaded machine so far).
     threads: str = "agent"
     # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
     spread_slots: bool = False
@@ -251,8 +253,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
 
     if cfg.nodes < 1 or cfg.people < 0 or cfg.hosts < 1 or cfg.workers < 1:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
-    if cfg.threads not in ("process", "agent"):
-        raise ScaleError(f"--threads must be process or agent, not {cfg.threads!r}")
+    if cfg.threads not in ("process", "agent", "batch"):
+        raise ScaleError(f"--threads must be process, agent or batch, not {cfg.threads!r}")
     if not 0 <= cfg.rt_priority <= 99:
         raise ScaleError("--rt-priority must be 0 (off) to 99")
     if cfg.rt_priority and os.geteuid() != 0:

@@ -39,6 +39,9 @@ log = logging.getLogger(__name__)
 #: People farther than this from a node are left out of its simulation (m): more than one
 #: room away, behind at least one partition, their echoes are far below the noise.
 PEOPLE_RANGE = 20.0
+#: ``--threads batch``: a node process serves together the slots of its nodes that start within
+#: this time (s) of the earliest (half a 20 ms frame: a process's adjacent slots, one frame's).
+BATCH_WINDOW = 0.01
 #: Fusion worker margin: a cell's worker fuses the nodes within this distance of its cell (m).
 CELL_MARGIN = 6.0
 
@@ -172,10 +175,12 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
         # start-up is over (imports, kernels, scene, DSP state): its heap never needs scanning
         # again; collected before the slots run, not in one of them
         settle_heap()
-        if cfg.get("threads", "agent") == "process":
+        threads = cfg.get("threads", "agent")
+        if threads in ("process", "batch"):
             # one acquisition thread serves the agents in slot order (no GIL hand-offs
-            # between K workers whose slots follow each other)
-            group = SlotOrderGroup(agents)
+            # between K workers whose slots follow each other); "batch": one wake-up per frame
+            # for all of them, back to back (docs/capacity.md, sixth round)
+            group = SlotOrderGroup(agents, batch_window=BATCH_WINDOW if threads == "batch" else 0)
             group.start()
             stack.callback(group.stop)
         else:

@@ -38,7 +38,9 @@ def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-
         time.sleep(0.02)
 
 
-def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
+@pytest.mark.parametrize("batch_window", [0.0, 0.01])
+def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, batch_window):
+    # batch_window 0.01: the agents' slots of a frame served and published together
     network = SimNetwork(load_scenario("foyer3"), seed=7)
     nodes = sorted(network.node_infos())
     assert len(nodes) >= 3
@@ -61,7 +63,7 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
             agents.append(
                 NodeAgent(session, driver, AgentConfig(node=node, net=NET, publish_ir=False))
             )
-        group = SlotOrderGroup(agents)
+        group = SlotOrderGroup(agents, batch_window=batch_window)
         group.start()
         stack.callback(group.stop)
         names = {t.name for t in threading.enumerate()}
@@ -85,6 +87,8 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint):
     steady = [d for d in dets if d.frame >= dets[0].frame + 5]
     times = [d.t for d in steady]
     assert times == sorted(times)
+    # each slot served once (a batch serves slots before their start)
+    assert len({(d.src, d.frame) for d in steady}) == len(steady)
     # Every node in (nearly) every frame: the nodes join the schedule one by one at first, the
     # last frame may be incomplete, and a loaded machine may make the thread skip a slot.
     last = sorted({d.frame for d in steady})[-31:-1]
@@ -107,6 +111,8 @@ class _FakeAgent:
 
     def __init__(self, name: str, times: list[float]) -> None:
         self.name, self.times, self.served = name, list(times), []
+        self.late: list[float | None] = []
+        self.published: list[tuple[int, float]] = []
         self.config = type("C", (), {"node": name})()
 
     def start(self, *, threads: bool = True) -> None:
@@ -120,13 +126,15 @@ class _FakeAgent:
             return None
         return SlotTiming(frame=0, slot=0, tx=self.name, t=self.times[0], duration=0.001)
 
-    def serve(self, slot: SlotTiming) -> int:
+    def serve(self, slot: SlotTiming, *, late: float | None = None) -> int:
         self.served.append((slot.t, time.time()))
+        self.late.append(late)
         self.times.pop(0)
-        return 0
+        return 1
 
     def publish_pending(self, limit: int | None = None) -> None:
-        pass
+        if limit:  # the group's final flush (None) finds nothing left
+            self.published.append((limit, time.time()))
 
 
 def test_group_serves_the_earliest_slot_first_and_never_early():
@@ -145,6 +153,35 @@ def test_group_serves_the_earliest_slot_first_and_never_early():
     assert [slot for _, slot, _ in served] == sorted(slot for _, slot, _ in served)
     assert [name for _, _, name in served] == ["b", "a", "c", "b", "a", "c"]
     assert all(when >= slot for when, slot, _ in served)
+
+
+def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early():
+    t0 = time.time() + 0.05
+    # two frames of three adjacent slots (3 ms apart), 20 ms apart; window 10 ms
+    a = _FakeAgent("a", [t0, t0 + 0.020])
+    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.023])
+    c = _FakeAgent("c", [t0 + 0.006, t0 + 0.026])
+    group = SlotOrderGroup([c, a, b], batch_window=0.01)  # type: ignore[list-item]
+    group.start()
+    try:
+        _wait_for(
+            lambda: all(len(x.published) == 2 for x in (a, b, c)), 5.0, "all messages published"
+        )
+    finally:
+        group.stop()
+    for frame in range(2):
+        served = sorted((when, slot) for x in (a, b, c) for slot, when in [x.served[frame]])
+        # in slot order, not before the batch's first slot; one batch: the same lateness
+        assert [slot for _, slot in served] == sorted(slot for _, slot in served)
+        assert served[0][0] >= served[0][1]
+        assert len({x.late[frame] for x in (a, b, c)}) == 1
+        assert all(0.0 <= x.late[frame] < 1.0 for x in (a, b, c))  # type: ignore[operator]
+        # every message leaves once the batch's last slot (c's) has started, none before
+        last = c.served[frame][0]
+        assert all(x.published[frame][1] >= last for x in (a, b, c))
+        assert all(x.published[frame][0] == 1 for x in (a, b, c))
+    with pytest.raises(ValueError, match="batch_window"):
+        SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 
 
 def test_scale_spreads_a_node_process_over_the_frame():

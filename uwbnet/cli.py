@@ -926,13 +926,14 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--hosts", type=_count, default=1, help="network namespaces (root if > 1)")
     sc.add_argument("--duration", type=_positive, default=10.0, help="measured seconds")
     sc.add_argument("--workers", type=_count, default=1, help="fusion cell workers (1: one center)")
-    sc.add_argument("--nodes-per-process", type=_count, default=4, help="nodes per process")
+    sc.add_argument("--nodes-per-process", type=_count, default=8, help="nodes per process")
     sc.add_argument(
         "--threads",
         choices=("process", "agent", "batch"),
-        default="agent",
-        help="one acquisition thread per node agent (default) or per node process; batch: "
-        "one per node process, serving its nodes' slots of a frame together",
+        default="batch",
+        help="batch (default): one acquisition thread per node process, serving its nodes' "
+        "slots of a frame together; agent: one per node agent; process: one per node "
+        "process, a slot per wake-up",
     )
     sc.add_argument(
         "--spread-slots",

@@ -56,16 +56,18 @@ class ScaleConfig:
     hosts: int = 1
     duration: float = 10.0
     workers: int = 1
-    # 4: eight node agents in one process missed slots on the GIL (1.8 % drops at 12 nodes,
-    # none with four per process; docs/capacity.md).
-    nodes_per_process: int = 4
-    # "agent": every agent has its own worker and publisher threads; "process": the agents of
-    # a node process share one acquisition thread, in slot order (node_agent.group). Measured
-    # at load 8-9 (docs/capacity.md, stop 17): "process" lost 2-14x more acquisitions and
-    # saved no CPU, so "agent" stays the default. "batch": one thread per node process serves
-    # the slots of a frame together (node_agent.group, batch_window; docs/capacity.md, sixth
-    # round: less CPU per acquisition, measured only on a loaded machine so far).
-    threads: str = "agent"
+    # 8 with the batch layout below (docs/capacity.md, sixth round: 0.57-0.61 ms of CPU per
+    # acquisition at 32 nodes against 0.73 with 4 per process). With a thread per agent, 8 per
+    # process missed slots on the GIL (1.8 % drops at 12 nodes, none with 4 per process).
+    nodes_per_process: int = 8
+    # "batch" (default): one thread per node process serves the slots of its nodes that start
+    # within 10 ms together, each at its own time, and publishes none before its slot starts
+    # (node_agent.group, batch_window). Measured on the quiet machine (docs/capacity.md, sixth
+    # round): 48 nodes 0.00-0.10 % drops against 0.31 % for "agent", 0.58 ms of CPU per
+    # acquisition against 0.79-0.96. "agent": every agent has its own worker and publisher
+    # threads; "process": the agents of a node process share one acquisition thread, in slot
+    # order, one slot per wake-up (lost 2-14x more than "agent" at load 8-9, stop 17).
+    threads: str = "batch"
     # a node process's nodes take every n_proc-th slot of the frame (False: adjacent slots)
     spread_slots: bool = False
     # SCHED_FIFO priority of every scale process (0: the normal scheduler); root only

@@ -188,7 +188,7 @@ def test_scale_spreads_a_node_process_over_the_frame():
     from uwbnet.scale_cmd import ScaleConfig, _plan
 
     def groups(**kw):  # type: ignore[no-untyped-def]
-        plan = _plan(ScaleConfig(nodes=20, people=2, **kw))
+        plan = _plan(ScaleConfig(nodes=20, people=2, nodes_per_process=4, **kw))
         return [cfg["ids"] for _, role, cfg in plan if role == "nodes"]
 
     spread, adjacent = groups(spread_slots=True), groups()
@@ -197,7 +197,7 @@ def test_scale_spreads_a_node_process_over_the_frame():
     # slots go in id order: a process's four nodes are five slots (5 ms) apart, not adjacent
     assert spread == [ids[g::5] for g in range(5)]
     assert adjacent == [ids[4 * g : 4 * g + 4] for g in range(5)]
-    assert all(cfg["threads"] == "agent" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))
+    assert all(cfg["threads"] == "batch" for _, r, cfg in _plan(ScaleConfig(nodes=5, people=1)))
 
 
 def test_scale_rejects_a_bad_rt_priority_with_one_line():

@@ -1,6 +1,9 @@
-"""FusionCore drops position estimates beyond a sensor's max_range when asked (pure)."""
+"""FusionCore gives each scan its sensor's blind zone from node_info when asked, and drops
+position estimates beyond the sensor's range when its range gate is on (pure)."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import msgpack
 import numpy as np
@@ -8,13 +11,17 @@ import pytest
 
 from fusion_center.core import FusionCore, FusionCoreConfig
 from fusion_center.tracking.base import TrackerOutput
+from node_agent.core import radar_params
 from protocol import Detections, NodeInfo
 from sim_nodes.network import SimNetwork
 
 
-class ScanLog:
-    """A tracker stand-in that keeps the scans it is given."""
+def _empty(src: str, t: float) -> Detections:
+    no = {"rx1": (), "rx2": ()}
+    return Detections(src=src, seq=0, t=t, tx=f"{src}/tx", frame=0, ranges=no, amplitudes=no)
 
+
+class ScanRecorder:
     def __init__(self) -> None:
         self.scans: list = []
 
@@ -26,9 +33,32 @@ class ScanLog:
         pass
 
 
+@pytest.mark.parametrize("blind_zone", [False, True])
+def test_scans_carry_the_blind_zone(blind_zone: bool) -> None:
+    rec = ScanRecorder()
+    core = FusionCore(rec, FusionCoreConfig(blind_zone=blind_zone, window_guard=1.0))  # type: ignore[arg-type]
+    infos = {}
+    for nid, info in SimNetwork("foyer3", seed=1).node_infos().items():
+        wire = {"v": 1, "kind": "node_info", "src": nid, "seq": 0, "t": 0.0, **info}
+        msg = NodeInfo.from_wire(msgpack.packb(wire))
+        # a cropped window: 20 ns after the emission (6 m of bistatic path)
+        infos[nid] = msg = dataclasses.replace(msg, radar=dataclasses.replace(msg.radar, t0=20e-9))
+        core.add_node(msg)
+    core.expected = frozenset({"bat1", "bat2"})
+    core.add_detections(_empty("bat1", 0.00))
+    core.add_detections(_empty("bat2", 0.01))
+    assert len(rec.scans) == 2
+    for scan in rec.scans:
+        radar = radar_params(infos[scan.sensor])
+        want = (radar.measurable(1.0)[0] / 2.0) if blind_zone else 0.0
+        assert scan.min_range == pytest.approx(want)
+        if blind_zone:
+            assert scan.min_range > 3.0  # half of 6 m plus half a pulse width
+
+
 @pytest.mark.parametrize("range_gate", [False, True])
 def test_estimates_beyond_max_range_are_dropped(range_gate: bool) -> None:
-    rec = ScanLog()
+    rec = ScanRecorder()
     core = FusionCore(rec, FusionCoreConfig(range_gate=range_gate, max_range=10.0))  # type: ignore[arg-type]
     for nid, info in SimNetwork("foyer3", seed=1).node_infos().items():
         wire = {"v": 1, "kind": "node_info", "src": nid, "seq": 0, "t": 0.0, **info}

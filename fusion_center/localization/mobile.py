@@ -285,12 +285,13 @@ class RangingLocalizer:
         Gaussian errors; the fixes' errors have a tail (leaked multipath outliers, errors
         correlated over a standing node's rounds), and the mean, unlike a median, counts it,
         so that the published covariance matches the mean-square error."""
-        if len(self._nis_fix) < self._nis_fix.maxlen // 4:
+        if not self._nis_fix or len(self._nis_fix) < self._nis_fix.maxlen // 4:
             return 1.0
         # the LOS ranges' spread beyond their reported noise core (median squared innovation
         # over that of a chi-square with one degree of freedom: the small multipath errors
-        # the weights keep), times what the fixes' innovations say beyond that
-        spread = max(float(np.median(self._z2)) / 0.455, 1.0)
+        # the weights keep), times what the fixes' innovations say beyond that; no LOS range
+        # yet (every anchor NLOS so far): no spread to measure, not a NaN covariance
+        spread = max(float(np.median(self._z2)) / 0.455, 1.0) if self._z2 else 1.0
         return spread * max(float(np.mean(np.minimum(self._nis_fix, 1e3))) / 2.0, 1.0)
 
     def _robust(

@@ -120,3 +120,14 @@ def test_closed_form_condition_number_matches_numpy():
         n = a.T @ a
         assert _condition(n) == pytest.approx(np.linalg.cond(n), rel=1e-6)
     assert _condition(np.ones((2, 2))) == float("inf")
+
+
+def test_covariance_factor_is_finite_before_any_los_range():
+    # a node that starts with every anchor NLOS has fix innovations but no LOS range yet:
+    # the published covariance must not turn NaN (a NaN pose is rejected on the wire)
+    loc = RangingLocalizer(ANCHORS, height=1.0)
+    loc._nis_fix.extend([2.0] * loc._nis_fix.maxlen)
+    assert not loc._z2
+    assert loc._cov_factor() == 1.0
+    loc._z2.extend([0.455 * 4.0] * 10)
+    assert loc._cov_factor() == pytest.approx(4.0)

@@ -117,6 +117,7 @@ class FusionService:
         self.health: dict[str, NodeHealth] = {}
         self.latest: TrackerOutput | None = None
         self.decode_errors = 0
+        self.rejected_poses = 0
         self._schedule: TdmaSchedule | None = None
         self._schedule_bytes = b""
         self._seq = {"tracks": 0, "schedule": 0, "poses": 0}
@@ -419,6 +420,11 @@ class FusionService:
         if result is None:
             return
         node, res = result
+        if not (np.isfinite(res.pose).all() and np.isfinite(res.cov).all()):
+            # one bad pose must not sit in latest_poses and spoil every later message
+            self.rejected_poses += 1
+            log.warning("pose of %s at t=%.3f not published: not finite", node, res.t)
+            return
         with self._lock:
             self.latest_poses[node] = res
             latest = dict(self.latest_poses)

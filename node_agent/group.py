@@ -76,6 +76,8 @@ class SlotOrderGroup:
         # thread sends them in slot order, as they were acquired, not before their release
         self._order: collections.deque[tuple[float, NodeAgent, int]] = collections.deque()
         self._queued = threading.Event()
+        # set once the acquisition thread has ended: the publisher's final flush
+        self._flushing = threading.Event()
         self._threads: list[threading.Thread] = []
 
     def start(self) -> None:
@@ -95,11 +97,15 @@ class SlotOrderGroup:
     def stop(self) -> None:
         """Stop the threads, publish what is queued, and stop (undeclare) every agent."""
         self._stop.set()
+        publisher, acquisition = self._threads or (None, None)
+        # the acquisition thread first: a batch it is serving ends and queues its messages,
+        # and only then does the publisher make its final flush
+        if acquisition is not None:
+            acquisition.join(timeout=5.0)
+        self._flushing.set()
         self._queued.set()
-        # the acquisition thread first: what its last slot queues is then in the publisher's
-        # final flush
-        for thread in reversed(self._threads):
-            thread.join(timeout=5.0)
+        if publisher is not None:
+            publisher.join(timeout=5.0)
         self._threads = []
         for agent in self.agents:
             agent.stop()
@@ -146,15 +152,28 @@ class SlotOrderGroup:
         self._queued.set()  # one wake-up of the publisher per batch
 
     def _publish_loop(self) -> None:
-        while not self._stop.is_set():
+        while not self._flushing.is_set():
             self._queued.wait(0.1)
             self._queued.clear()
-            while self._order and not self._stop.is_set():
-                release, agent, count = self._order[0]
-                hold = release - self.clock()
-                if hold > 0 and self._stop.wait(hold):
-                    break
-                self._order.popleft()
-                agent.publish_pending(count)
+            self._publish_released(self._flushing)
+        # the final flush: everything the acquisition thread queued, still none before its
+        # release (a batch's last slot start, at most one batch window away)
+        self._publish_released(None)
         for agent in self.agents:
             agent.publish_pending()
+
+    def _publish_released(self, stop: threading.Event | None) -> None:
+        """Publish the queued messages in order, each once its release time has come; with
+        ``stop`` set, return early (what is left goes in the final flush)."""
+        while self._order and not (stop is not None and stop.is_set()):
+            release, agent, count = self._order[0]
+            hold = release - self.clock()
+            if hold > 0:
+                if stop is not None:
+                    if stop.wait(hold):
+                        return
+                else:
+                    # bounded: a release is at most one batch window after its batch began
+                    time.sleep(min(hold, self.batch_window))
+            self._order.popleft()
+            agent.publish_pending(count)

@@ -184,6 +184,28 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
         SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 
 
+class _SlowAgent(_FakeAgent):
+    """Takes 30 ms to serve a slot: a batch is still being served when the group stops."""
+
+    def serve(self, slot: SlotTiming, *, late: float | None = None) -> int:
+        time.sleep(0.03)
+        return super().serve(slot, late=late)
+
+
+def test_stopping_during_a_batch_publishes_every_served_slot_after_its_release():
+    t0 = time.time() + 0.05
+    agents = [_SlowAgent(n, [t0 + 0.003 * k]) for k, n in enumerate("abc")]
+    group = SlotOrderGroup(agents, batch_window=0.01)  # type: ignore[arg-type]
+    group.start()
+    _wait_for(lambda: bool(agents[0].served), 5.0, "the batch begun")
+    group.stop()  # while b and c are still to be served
+    assert all(len(x.served) == 1 for x in agents)
+    # nothing served is lost in the shutdown, and nothing leaves before the batch's last slot
+    assert [len(x.published) for x in agents] == [1, 1, 1]
+    last = agents[-1].served[0][0]
+    assert all(x.published[0][1] >= last for x in agents)
+
+
 def test_scale_spreads_a_node_process_over_the_frame():
     from uwbnet.scale_cmd import ScaleConfig, _plan
 

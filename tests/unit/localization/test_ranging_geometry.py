@@ -94,7 +94,9 @@ def test_ceiling_and_floor_of_a_room():
         "ceiling": 2.6,
         "floor_material": "brick",
     }
-    sim = _sim(room=room)
+    ranging = load_scenario("lab_los").ranging.model_dump(exclude_none=True)
+    ranging.pop("floor_material")  # [ranging]'s would override the room's
+    sim = _sim(room=room, ranging=ranging)
     p = np.array([1.5, 1.5, 1.0])
     a = sim.anchors["rx1"]
     d = np.linalg.norm(a - p)

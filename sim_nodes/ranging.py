@@ -254,7 +254,10 @@ class RangingSimulator:
             same = side[0] * side[1] > 0.0
             img = mirror(p[None, :], walls.start[same], walls.end[same])
             bounds.append(np.linalg.norm(img - a, axis=-1) - d)
-        h, gamma = self._planes[:, 0], self._planes[:, 1]
+        # floor and ceiling reflect only when both ends are on their room side
+        h, gamma = self._planes.T
+        same = (p[2] - h) * (a[2] - h) > 0.0
+        h, gamma = h[same], gamma[same]
         img = np.repeat(p[None, :], h.size, axis=0)
         img[:, 2] = 2.0 * h - p[2]
         length = np.linalg.norm(a - img, axis=-1)
@@ -265,7 +268,9 @@ class RangingSimulator:
         delays.append((length + e1 + e2 - d) / C * 1e9)
         amps.append(gamma * t1 * t2 * d / length)
         bounds.append(length - d)
-        onset = float(np.min(np.concatenate(bounds))) / C * 1e9
+        bound = np.concatenate(bounds)
+        # no surface on the link's side: nothing bounds the multipath (802.15.4a as it is)
+        onset = float(np.min(bound)) / C * 1e9 if bound.size else 0.0
         return Reflections(
             delays=np.concatenate(delays), amplitudes=np.concatenate(amps), onset=max(onset, 0.0)
         )

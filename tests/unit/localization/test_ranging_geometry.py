@@ -116,6 +116,13 @@ def test_ceiling_and_floor_of_a_room():
     assert refl.onset == pytest.approx(min(refl.delays))
 
 
+def test_no_floor_reflection_for_an_anchor_below_the_floor():
+    sim = _sim()
+    sim.anchors["low"] = np.array([2.0, 2.0, -0.5])  # a basement anchor: no floor between
+    refl = sim.reflections(np.array([1.5, 1.5, 1.0]), "low")
+    assert refl.delays.size == 0 and refl.onset == 0.0
+
+
 def test_nlos_links_stay_obstructed():
     sim = _sim("lab_nlos", seed=5)
     p, _, _ = track_position(sim.scenario.mobiles[0], 0.0)

@@ -103,6 +103,11 @@ def poses_message(results: dict[str, PoseResult], *, src: str, seq: int, t: floa
     )
 
 
+def _sig(v: float) -> float:
+    """``v`` to 6 significant digits (JSON-safe; inf and nan as they are)."""
+    return float(f"{v:.6g}")
+
+
 def pose_json(node: str, res: PoseResult) -> dict[str, object]:
     """One JSONL record of ``uwbnet localize``: the tracked pose and the snapshot fix."""
     fix = res.fix
@@ -110,9 +115,10 @@ def pose_json(node: str, res: PoseResult) -> dict[str, object]:
         "t": round(res.t, 6),
         "node": node,
         "pose": [round(v, 5) for v in res.pose],
-        "cov": [[round(v, 8) for v in row] for row in res.cov.tolist()],
+        # significant digits: sub-millimetre poses have variances of 1e-8 m² and less
+        "cov": [[_sig(v) for v in row] for row in res.cov.tolist()],
         "los": res.los,
         "fix": [round(float(v), 5) for v in fix.position] if fix.ok else None,
-        "fix_cov": [[round(float(v), 8) for v in row] for row in fix.cov] if fix.ok else None,
+        "fix_cov": [[_sig(float(v)) for v in row] for row in fix.cov] if fix.ok else None,
         "fix_reason": fix.reason,
     }

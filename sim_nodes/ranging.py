@@ -6,9 +6,27 @@ Pure numpy (time ``t`` is an argument). Each link between a mobile node and an a
   wall it crosses (the material's one-way transmission loss and the excess path
   ``thickness (sqrt(eps_r) - 1)``, :func:`sim_nodes.channel.geometry.wall_crossings`): LOS, or
   NLOS with an obstructed direct path;
-- dense multipath after it, an 802.15.4a realization (:mod:`sim_nodes.channel.stochastic`)
-  at the unobstructed free-space level (it reaches the receiver around the walls), redrawn
-  every round while the node moves and every ``coherence_time`` while it stands still.
+- the specular first-order reflections of the scene's surfaces: each ``[[walls]]`` wall and
+  each edge of ``[room]``'s outline by
+  the image method (:func:`sim_nodes.channel.paths.image_paths`, order 1), the floor (z = 0,
+  or ``[room]``'s floor) and, when ``[room]`` gives one, the ceiling, each with its
+  material's signed normal-incidence reflection factor (angle-independent, as in the
+  image-method channel) and the transmission of the walls its legs cross;
+- dense multipath, an 802.15.4a realization (:mod:`sim_nodes.channel.stochastic`) at the
+  unobstructed free-space level (it reaches the receiver around the walls), redrawn every
+  round while the node moves and every ``coherence_time`` while it stands still. It starts
+  at the earliest specular reflection of the scene (``onset`` of
+  :func:`~sim_nodes.channel.stochastic.draw_channel`), never before the direct path.
+
+Why the dense multipath starts there: a path via any point of a plane surface is at least
+as long as the specular path of that plane (the unfolded image path is a straight line), so
+no energy scattered or reflected by the scene's surfaces arrives earlier; the bound is taken
+over the infinite planes (a lower bound for finite walls), for walls only when both ends of
+the link are on the same side. The 802.15.4a model alone starts the rays at the direct path
+(the first within 0.67 ns, 15 % within 0.1 ns): a ray 0.1 ns late is a scatterer within the
+first Fresnel zone of the link, which would obstruct the direct path rather than add an
+echo, and the scenarios place nothing there. In lab_los the earliest reflection, the floor,
+is 1.5-4 ns after the direct path.
 
 Each round of the ``[ranging]`` scheme renders one impulse response per message in the
 receiver's window (sample 0 a random few ns before the first path: preamble sync), and the
@@ -27,18 +45,52 @@ import numpy.typing as npt
 from node_agent.dsp.geometry import RadarParams
 from node_agent.dsp.rttoa import RoundTrip
 from protocol.units import C
-from sim_nodes.channel.geometry import Walls, wall_crossings
+from sim_nodes.channel.geometry import Walls, mirror, wall_crossings, wall_side
+from sim_nodes.channel.paths import Antennas, image_paths
 from sim_nodes.channel.stochastic import (
     OFFICE_LOS,
     RESIDENTIAL_LOS,
     draw_channel,
     render,
 )
-from sim_nodes.scene import MobileModel, RangingModel, Scenario
+from sim_nodes.scene import MaterialModel, MobileModel, RangingModel, Scenario
 
 FloatArray = npt.NDArray[np.float64]
 
 ENVIRONMENTS = {"office": OFFICE_LOS, "residential": RESIDENTIAL_LOS}
+
+#: The floor when the scenario names no material: concrete, eps_r 6 (Gamma -0.42).
+DEFAULT_FLOOR = MaterialModel(permittivity=6.0)
+
+
+def _with_outline(walls: Walls, scenario: Scenario) -> Walls:
+    """``walls`` and the edges of ``[room]``'s outline (reflectors and obstacles of the
+    ranging link like any wall, from the floor to the room's top)."""
+    room = scenario.room
+    if room is None:
+        return walls
+    mat = scenario.materials[room.material]
+    xy = np.asarray(room.outline, float)
+    k = xy.shape[0] - 1
+    extra = Walls(
+        start=xy[:-1],
+        end=xy[1:],
+        height=np.full(k, room.top),
+        reflection=np.full(k, mat.gamma()),
+        transmission=np.full(k, mat.transmission()),
+        excess=np.full(k, room.thickness * (math.sqrt(mat.permittivity) - 1.0)),
+    )
+    if walls.count == 0:
+        return extra
+    excess = walls.excess if walls.excess is not None else np.zeros(walls.count)
+    return Walls(
+        start=np.concatenate([walls.start, extra.start]),
+        end=np.concatenate([walls.end, extra.end]),
+        height=np.concatenate([walls.height, extra.height]),
+        reflection=np.concatenate([walls.reflection, extra.reflection]),
+        transmission=np.concatenate([walls.transmission, extra.transmission]),
+        excess=np.concatenate([excess, extra.excess]),
+    )
 
 
 def track_position(mobile: MobileModel, t: float) -> tuple[FloatArray, float, bool]:
@@ -76,6 +128,22 @@ class LinkState:
     @property
     def los(self) -> bool:
         return self.transmission >= 1.0 and self.excess == 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class Reflections:
+    """The specular first-order reflections of one link.
+
+    ``delays`` (ns) count from the geometric direct-path arrival ``d / c`` (they include
+    the excess of the walls a leg crosses), ``amplitudes`` are relative to an unobstructed
+    direct path (``Gamma T d / L``, L the unfolded length), ``onset`` (ns) is the earliest
+    delay at which any reflection or scattering off the scene's surfaces can arrive (over
+    the infinite planes of the surfaces; see the module docstring).
+    """
+
+    delays: FloatArray
+    amplitudes: FloatArray
+    onset: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -118,7 +186,7 @@ class RangingSimulator:
         self.radar = RadarParams(
             fs=cfg.fs, n=cfg.n, t0=0.0, f_low=cfg.f_low, f_high=cfg.f_high, fc=cfg.fc
         )
-        self.walls = walls
+        self.walls = _with_outline(walls, scenario)
         self.anchors = {a.id: np.asarray(a.position, float) for a in scenario.anchors}
         self.mobiles = {m.id: m for m in scenario.mobiles}
         self._env = ENVIRONMENTS[cfg.environment]
@@ -135,6 +203,17 @@ class RangingSimulator:
             nid: np.random.default_rng(c) for nid, c in zip(ids, children[1:], strict=True)
         }
         self._unit_ebn0, self._beta = self._unit_pulse()
+        room = scenario.room
+        mats = scenario.materials
+        floor_mat = cfg.floor_material or (room.floor_material or room.material if room else None)
+        # horizontal reflectors: (height, reflection factor)
+        planes = [
+            (room.floor if room else 0.0, (mats[floor_mat] if floor_mat else DEFAULT_FLOOR).gamma())
+        ]
+        if room is not None and room.ceiling is not None:
+            ceiling_mat = room.ceiling_material or room.material
+            planes.append((room.ceiling, mats[ceiling_mat].gamma()))
+        self._planes = np.array(planes, float)
         self._multipath: dict[tuple[str, str], tuple[float, FloatArray, npt.NDArray]] = {}
 
     def link_state(self, position: FloatArray, anchor: str) -> LinkState:
@@ -147,26 +226,87 @@ class RangingSimulator:
             excess=float(excess[0]),
         )
 
+    def reflections(self, position: FloatArray, anchor: str) -> Reflections:
+        """Specular first-order reflections between ``position`` (x, y, z) and ``anchor``.
+
+        Walls by the image method (:func:`sim_nodes.channel.paths.image_paths`, order 1:
+        a reflection exists only where its point lies on the wall, below its top); floor
+        and ceiling as infinite planes, the image mirrored in z,
+        :math:`z' = 2 h - z`; every leg attenuated by the walls it crosses.
+        """
+        a = self.anchors[anchor]
+        p = np.asarray(position, float)
+        d = float(np.linalg.norm(a - p))
+        omni = np.array([2.0 * np.pi])
+        delays: list[FloatArray] = []
+        amps: list[FloatArray] = []
+        bounds = []
+        walls = self.walls
+        if walls.count:
+            tx = Antennas(position=p[None, :], boresight=np.zeros(1), beamwidth=omni)
+            rx = Antennas(position=a[None, :], boresight=np.zeros(1), beamwidth=omni)
+            tau, amp = image_paths(tx, rx, walls, max_order=1)
+            valid = amp[0, 1:] != 0.0
+            delays.append(tau[0, 1:][valid] * 1e9 - d / C * 1e9)
+            amps.append(amp[0, 1:][valid] * d)
+            # onset bound: the infinite plane of every wall with both ends on one side
+            side = wall_side(np.stack([p, a]), walls)
+            same = side[0] * side[1] > 0.0
+            img = mirror(p[None, :], walls.start[same], walls.end[same])
+            bounds.append(np.linalg.norm(img - a, axis=-1) - d)
+        # floor and ceiling reflect only when both ends are on their room side
+        h, gamma = self._planes.T
+        same = (p[2] - h) * (a[2] - h) > 0.0
+        h, gamma = h[same], gamma[same]
+        img = np.repeat(p[None, :], h.size, axis=0)
+        img[:, 2] = 2.0 * h - p[2]
+        length = np.linalg.norm(a - img, axis=-1)
+        u = (h - img[:, 2]) / (a[2] - img[:, 2])
+        point = img + u[:, None] * (a - img)
+        t1, e1 = wall_crossings(np.repeat(p[None, :], h.size, axis=0), point, walls)
+        t2, e2 = wall_crossings(point, np.repeat(a[None, :], h.size, axis=0), walls)
+        delays.append((length + e1 + e2 - d) / C * 1e9)
+        amps.append(gamma * t1 * t2 * d / length)
+        bounds.append(length - d)
+        bound = np.concatenate(bounds)
+        # no surface on the link's side: nothing bounds the multipath (802.15.4a as it is)
+        onset = float(np.min(bound)) / C * 1e9 if bound.size else 0.0
+        return Reflections(
+            delays=np.concatenate(delays), amplitudes=np.concatenate(amps), onset=max(onset, 0.0)
+        )
+
     def _paths(
-        self, mobile: str, anchor: str, t: float, moving: bool, link: LinkState
+        self,
+        mobile: str,
+        anchor: str,
+        t: float,
+        moving: bool,
+        link: LinkState,
+        position: FloatArray,
     ) -> tuple[FloatArray, npt.NDArray]:
         rng = self._rng[mobile]
         key = (mobile, anchor)
+        refl = self.reflections(position, anchor)
+        direct = link.excess / C * 1e9  # ns after d / c: slower inside the walls
         cached = self._multipath.get(key)
         if moving or cached is None or t - cached[0] >= self.config.coherence_time:
+            # the dense multipath starts at the earliest reflection the geometry allows,
+            # and never before the (possibly delayed) direct path
             delays, amps = draw_channel(
-                self._env, rng, max_delay=self.config.n / self.config.fs * 1e9
+                self._env,
+                rng,
+                max_delay=self.config.n / self.config.fs * 1e9,
+                onset=max(refl.onset, direct),
             )
             cached = (t, delays, amps)
             self._multipath[key] = cached
         _, delays, amps = cached
-        delays = delays.copy()
-        amps = amps.copy()
-        # the direct path: through the walls, slower inside them; the 802.15.4a multipath
-        # delays are relative to the direct path (its excess delays them too), but it goes
-        # round the walls (not attenuated by them)
-        amps[0] = abs(amps[0]) * link.transmission
-        delays = delays + link.excess / C * 1e9
+        # the direct path: through the walls (attenuated, slower inside them); the
+        # dense multipath goes round the walls (not attenuated by them)
+        delays = np.concatenate([[direct], refl.delays, delays[1:]])
+        amps = np.concatenate(
+            [[abs(amps[0]) * link.transmission], refl.amplitudes.astype(complex), amps[1:]]
+        )
         spread = self.config.reference_distance / max(link.distance, 0.1)
         return delays, amps * spread
 
@@ -255,7 +395,7 @@ class RangingSimulator:
         cfg = self.config
         position, _, moving = track_position(self.mobiles[mobile], t)
         link = self.link_state(position, anchor)
-        delays, amps = self._paths(mobile, anchor, t, moving, link)
+        delays, amps = self._paths(mobile, anchor, t, moving, link, position)
         rng = self._rng[mobile]
         tof = link.distance / C
         drift_a, off_a = self.clocks[mobile]

@@ -415,7 +415,9 @@ class RangingModel(_Model):
     ``ds`` (double-sided, drift-tolerant) or ``ss`` (single-sided) two-way ranging with
     ``reply_delay`` and node clocks off by up to ``clock_ppm``; the multipath of each link is
     an 802.15.4a ``environment`` realization, redrawn every round while the node moves and
-    every ``coherence_time`` s while it stands still.
+    every ``coherence_time`` s while it stands still. The floor (z = 0, or ``[room]``'s
+    ``floor``) reflects with ``floor_material`` (or the room's; default a concrete floor,
+    eps_r 6), the ceiling only when ``[room]`` gives one (sim_nodes/ranging.py).
     """
 
     fs: float = Field(7.0e9, gt=0.0)
@@ -432,6 +434,7 @@ class RangingModel(_Model):
     environment: Literal["office", "residential"] = "residential"
     coherence_time: float = Field(1.0, gt=0.0)
     method: Literal["mpd", "threshold", "adaptive", "peak", "ml"] = "adaptive"
+    floor_material: str | None = None
 
 
 class CircleScanModel(_Model):
@@ -533,6 +536,8 @@ class Scenario(_Model):
         if self.circle_scan is not None:
             refs.append(("circle_scan.material", self.circle_scan.material))
         refs += [(f"objects[{i}].material", o.material) for i, o in enumerate(self.objects)]
+        if self.ranging is not None and self.ranging.floor_material is not None:
+            refs.append(("ranging.floor_material", self.ranging.floor_material))
         if self.room is not None:
             refs += [
                 (f"room.{k}", m)

@@ -20,6 +20,16 @@ Parameters are in physical units (ns, dB); the sampler renders the paths through
 and sample rate, real or complex baseband, so that classifiers trained on these channels
 see the radar they will run on.
 
+Where the dense multipath starts: the report lets the first cluster start at the direct
+path (``onset`` 0, the default here), so its first ray can be a few picoseconds late. For a
+link in a scene whose geometry is known (:mod:`sim_nodes.ranging`) that is not physical: a
+ray 0.1 ns late is 3 cm of excess path, a scatterer inside the first Fresnel zone of the
+link, which would obstruct the direct path rather than add an echo. Every path via a point
+of a plane surface is at least as long as the specular one (the image method's unfolded
+path is the shortest), so no scattered or reflected energy arrives before the earliest
+specular reflection of the scene's surfaces; ``onset`` starts the clusters there. Users
+without a geometry (the classifier's training sets, the ToA table) keep onset 0.
+
 Known deviations from the report (kept for now, see the stop-17 note of issue 4): rays
 arrive from one Poisson process per class, not the report's mixture of two rates
 (``beta``, ``lambda1``, ``lambda2``), so residential channels are about ten times denser
@@ -123,10 +133,20 @@ OFFICE_NLOS = ChannelClass(
 
 
 def draw_channel(
-    env: ChannelClass, rng: np.random.Generator, *, max_delay: float = 200.0
+    env: ChannelClass,
+    rng: np.random.Generator,
+    *,
+    max_delay: float = 200.0,
+    onset: float = 0.0,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.complex128]]:
     """One channel realisation: path delays (ns, relative to the direct path) and complex
     amplitudes (unobstructed direct path = 1).
+
+    The first cluster starts at ``onset`` (ns after the direct path; its first ray within
+    ``1 / ray_rate`` after it), the later ones Poisson after it; cluster powers, the
+    ray decay and the soft onset count from ``onset``, so the multipath's level and shape
+    do not depend on it. The direct path does not move. The random draws do not depend on
+    ``onset``: the same generator state gives the same channel, shifted.
 
     Parameters
     ----------
@@ -134,6 +154,9 @@ def draw_channel(
     rng : numpy.random.Generator
     max_delay : float
         Paths later than this are dropped, ns.
+    onset : float
+        Delay of the earliest multipath (the first cluster's start), ns, >= 0: the
+        earliest specular reflection of the scene (see the module docstring).
 
     Returns
     -------
@@ -141,6 +164,8 @@ def draw_channel(
         ns; the first entry is the direct path.
     amplitudes : ndarray, complex128, shape (P,)
     """
+    if not onset >= 0.0:
+        raise ValueError(f"onset must be >= 0 ns, got {onset}")
     n_cl = max(1, int(rng.poisson(env.n_clusters)))
     # cluster arrivals: the first at 0, the rest Poisson (exponential gaps)
     starts = np.concatenate([[0.0], np.cumsum(rng.exponential(1.0 / env.cluster_rate, n_cl - 1))])
@@ -153,6 +178,7 @@ def draw_channel(
     power = np.exp(-starts / env.cluster_decay)[:, None] * np.exp(-tau / env.ray_decay)
     if env.rise_chi > 0.0:
         power *= 1.0 - env.rise_chi * np.exp(-delay / env.rise_time)
+    delay = delay + onset
     shadow = 10 ** (rng.normal(0.0, env.cluster_shadow_db, n_cl) / 10.0)
     power *= shadow[:, None]
     level = 10 ** (rng.uniform(*env.multipath_db) / 10.0)

@@ -131,3 +131,15 @@ def test_covariance_factor_is_finite_before_any_los_range():
     assert loc._cov_factor() == 1.0
     loc._z2.extend([0.455 * 4.0] * 10)
     assert loc._cov_factor() == pytest.approx(4.0)
+
+
+def test_pose_json_keeps_sub_millimetre_covariances():
+    from fusion_center.localization.estimators import PositionFix
+    from fusion_center.localization.mobile import PoseResult
+    from fusion_center.pose_core import pose_json
+
+    cov = np.diag([9.2345e-8, 3.1e-9, 1.0])  # (0.3 mm)², (0.06 mm)², yaw
+    fix = PositionFix(position=np.array([1.0, 2.0]), cov=np.diag([1.1e-7, 4.4e-9]), ok=True)
+    rec = pose_json("tag", PoseResult(t=0.1, pose=(1.0, 2.0, 1.0, 0.0), cov=cov, los={}, fix=fix))
+    np.testing.assert_allclose(np.array(rec["cov"]), cov, rtol=1e-5)
+    np.testing.assert_allclose(np.array(rec["fix_cov"]), fix.cov, rtol=1e-5)

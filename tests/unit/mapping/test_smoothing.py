@@ -94,3 +94,22 @@ def test_bad_shapes_are_refused() -> None:
         s.smooth(np.zeros((3, 3)), np.zeros((2, 3)), [np.zeros((0, 2))] * 3, None, [0], [[0, 1]])
     with pytest.raises(ValueError, match="antennas"):
         LeastSquaresPathMapSmoother(np.zeros((2, 2)))
+
+
+def test_overlapping_walls_a_little_apart_merge_and_separate_ones_stay() -> None:
+    from fusion_center.mapping.features import merge_walls
+
+    # x = 2 seen twice, 0.2 m apart and 8 degrees turned, overlapping along y; a third wall
+    # 0.25 m off but 4 m further along (a different face) does not overlap
+    walls = np.array([[0.0, 2.0], [np.radians(8.0), 2.2], [0.0, 2.25]])
+    extent = np.array([[0.0, 3.0], [1.0, 4.0], [7.0, 9.0]])
+    hits = np.array([30.0, 10.0, 12.0])
+    w, e, h = merge_walls(walls, extent, hits, dist=0.1, angle=np.radians(6.0))
+    assert len(w) == 3  # the plain rule keeps all three
+    kw = {"overlap_dist": 0.3, "overlap_angle": np.radians(12.0)}
+    w, e, h = merge_walls(walls, extent, hits, dist=0.1, angle=np.radians(6.0), **kw)
+    assert len(w) == 2
+    assert sorted(h.tolist()) == [12.0, 40.0]
+    big = int(np.argmax(h))
+    assert 2.0 < w[big, 1] < 2.1  # hit-weighted
+    assert e[big, 0] < 0.05 and e[big, 1] > 3.8  # the union of the extents

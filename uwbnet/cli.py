@@ -315,6 +315,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         robot=args.robot,
         png=png,
         scenario=scenario,
+        smooth=not args.no_smooth,
     )
     return _run_offline(args, "mapping", run)
 
@@ -801,6 +802,11 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--seed", type=int, default=0, help="seed of the particle filter (0)")
     mp.add_argument("--robot", help="robot node id (default: the first mobile node with ir)")
     mp.add_argument("--eval", metavar="SCENARIO", help="score the map against this scenario")
+    mp.add_argument(
+        "--no-smooth",
+        action="store_true",
+        help="skip the joint least-squares smoothing of path and map (the filter's own map)",
+    )
     mp.set_defaults(func=cmd_map)
 
     e = sub.add_parser("eval", help="score tracks against a recording's truth")

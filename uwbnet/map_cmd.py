@@ -46,7 +46,10 @@ class MapStats:
     robot: str = ""
     wall_s: float = 0.0
     acquisitions_per_s: float = 0.0
+    smoothed: bool = False
+    smooth_cpu_s: float = 0.0
     eval: dict[str, Any] | None = None
+    eval_filter: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -63,9 +66,14 @@ def robot_geometry(info: NodeInfo, rx: tuple[str, ...]) -> np.ndarray:
 
 
 def _make_mapper(
-    info: NodeInfo, rx: tuple[str, ...], particles: int, association: str, seed: int
+    info: NodeInfo,
+    rx: tuple[str, ...],
+    particles: int,
+    association: str,
+    seed: int,
+    keep_history: bool = False,
 ) -> Any:
-    from fusion_center.mapping import EchoSlamMapper, SlamConfig
+    from fusion_center.mapping import EchoSlamMapper, MapperConfig, SlamConfig
 
     r = info.radar
     return EchoSlamMapper(
@@ -73,6 +81,7 @@ def _make_mapper(
         fs=r.fs,
         t0=r.t0,
         bandwidth=r.f_high - r.f_low,
+        config=MapperConfig(keep_history=keep_history),
         slam=SlamConfig(n_particles=particles, association=association, seed=seed),
     )
 
@@ -88,6 +97,7 @@ def map_recording(
     png: str | os.PathLike[str] | None = None,
     scenario: Any = None,
     progress: Callable[[int], None] | None = None,
+    smooth: bool = True,
 ) -> MapStats:
     """Map a robot recording; write ``out`` (map.json) and optionally ``png``.
 
@@ -95,7 +105,10 @@ def map_recording(
     seeds the particle filter (a run's figures scatter with it). With
     ``scenario`` (a loaded scenario) and ``truth`` messages in the recording, ``stats.eval``
     holds the map's errors (:func:`uwbnet.map_eval.evaluate_map`). Outputs appear only when
-    complete. Bad messages are counted in ``rejected`` and logged.
+    complete. Bad messages are counted in ``rejected`` and logged. With ``smooth`` (and
+    odometry in the recording), the filter's path and map are re-estimated jointly by least
+    squares (:meth:`fusion_center.mapping.EchoSlamMapper.smooth`) and map.json holds the
+    smoothed ones; ``stats.eval_filter`` then scores the filter's own map and path.
     """
     import time
 
@@ -130,7 +143,7 @@ def map_recording(
                 continue
             if not stats.robot:
                 stats.robot = msg.src
-                mapper = _make_mapper(info, msg.rx, particles, method, seed)
+                mapper = _make_mapper(info, msg.rx, particles, method, seed, smooth)
             elif msg.src != stats.robot:
                 continue
             if msg.h.shape[0] != 2 or not np.all(np.isfinite(msg.h)):
@@ -145,7 +158,16 @@ def map_recording(
     if mapper is None:
         raise MappingError(f"{path}: no ir of a mobile node (robot) with its node_info")
     emit(mapper.finish())
-    the_map = mapper.map()
+    the_map = filter_map = mapper.map()
+    filter_traj = traj
+    if smooth:
+        c0 = time.process_time()
+        smoothed = mapper.smooth()
+        stats.smooth_cpu_s = round(time.process_time() - c0, 2)
+        if smoothed is not None:
+            the_map, path = smoothed
+            traj = [[float(v) for v in row] for row in path]
+            stats.smoothed = True
     stats.wall_s = round(time.perf_counter() - t_start, 2)
     stats.acquisitions_per_s = round(stats.ir / max(stats.wall_s, 1e-9), 1)
     stats.walls, stats.corners, stats.points = (
@@ -176,9 +198,16 @@ def map_recording(
             raise MappingError(f"{path}: no truth of robot {stats.robot} to evaluate against")
         first = np.array([truth[0][1][0], truth[0][1][1], truth[0][1][-1]], float)
         has_odom = any(np.any(r[1:] != 0) for r in dead)
-        stats.eval = evaluate_map(
-            doc, scenario, truth_traj, first, np.array(dead) if has_odom else None
-        )
+        dr = np.array(dead) if has_odom else None
+        stats.eval = evaluate_map(doc, scenario, truth_traj, first, dr)
+        if stats.smoothed:
+            raw = {
+                "walls": filter_map.walls.tolist(),
+                "corners": filter_map.corners.tolist(),
+                "points": filter_map.points.tolist(),
+                "trajectory": filter_traj,
+            }
+            stats.eval_filter = evaluate_map(raw, scenario, truth_traj, first, None)
     return stats
 
 

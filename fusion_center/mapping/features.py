@@ -71,9 +71,19 @@ def _normal(alpha: FloatArray) -> FloatArray:
 
 
 def merge_walls(
-    walls: FloatArray, extent: FloatArray, hits: FloatArray, *, dist: float, angle: float
+    walls: FloatArray,
+    extent: FloatArray,
+    hits: FloatArray,
+    *,
+    dist: float,
+    angle: float,
+    overlap_dist: float = 0.0,
+    overlap_angle: float = 0.0,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Merge walls on the same line (normals within ``angle``, offsets within ``dist``).
+    """Merge walls on the same line (normals within ``angle``, offsets within ``dist``), and
+    overlapping walls on nearly the same line (within ``overlap_angle`` and
+    ``overlap_dist``, their extents overlapping along the line: one face seen from poses a
+    little apart).
 
     Merged lines are the hit-weighted mean; extents are the union.
     """
@@ -81,10 +91,24 @@ def merge_walls(
     used = np.zeros(len(walls), bool)
     out_w, out_e, out_h = [], [], []
     n = _normal(walls[:, 0]) if len(walls) else np.zeros((0, 2))
+    tang_all = np.stack([-n[:, 1], n[:, 0]], -1)
+    ends = np.stack(
+        [
+            walls[:, 1:2] * n + extent[:, :1] * tang_all,
+            walls[:, 1:2] * n + extent[:, 1:] * tang_all,
+        ],
+        1,
+    )  # (w, 2, 2) end points
     for i in order:
         if used[i]:
             continue
-        same = (~used) & (n @ n[i] >= np.cos(angle)) & (np.abs(walls[:, 1] - walls[i, 1]) <= dist)
+        cos_ij = n @ n[i]
+        off = np.abs(walls[:, 1] - walls[i, 1])
+        same = (~used) & (cos_ij >= np.cos(angle)) & (off <= dist)
+        if overlap_dist > 0.0:
+            t = ends @ tang_all[i]  # (w, 2) end points along wall i
+            overlap = (t.max(1) > extent[i, 0]) & (t.min(1) < extent[i, 1])
+            same |= (~used) & (cos_ij >= np.cos(overlap_angle)) & (off <= overlap_dist) & overlap
         used |= same
         w = hits[same] / hits[same].sum()
         nn = w @ n[same]
@@ -109,6 +133,8 @@ def build_map(
     extend: float = 2.0,
     merge_dist: float = 0.1,
     merge_angle: float = np.radians(6.0),
+    overlap_dist: float = 0.0,
+    overlap_angle: float = 0.0,
 ) -> SlamMap:
     """Walls (segments), corners and points from a particle's landmarks.
 
@@ -121,13 +147,21 @@ def build_map(
         Longest extension of a wall end to a corner or wall junction on its line, m.
     merge_dist, merge_angle : float
         Walls closer than this (m, rad) are one wall.
+    overlap_dist, overlap_angle : float
+        Overlapping walls closer than this (m, rad) are one wall (0: off).
 
     Returns
     -------
     SlamMap
     """
     walls, extent, _ = merge_walls(
-        lm.walls, lm.wall_extent, lm.wall_hits, dist=merge_dist, angle=merge_angle
+        lm.walls,
+        lm.wall_extent,
+        lm.wall_hits,
+        dist=merge_dist,
+        angle=merge_angle,
+        overlap_dist=overlap_dist,
+        overlap_angle=overlap_angle,
     )
     n = _normal(walls[:, 0]) if len(walls) else np.zeros((0, 2))
     pts = lm.points

@@ -41,6 +41,20 @@ def test_map_writes_walls_corners_points_and_trajectory(
     assert doc["trajectory"][0][1:] == [0.0, 0.0, 0.0]
     assert stats["eval"]["trajectory"]["rmse_m"] < 1.5
     assert not list(tmp_path.glob("*.partial*"))
+    # the path and map are smoothed jointly (graph SLAM); eval_filter scores the filter's own
+    assert stats["smoothed"] is True
+    raw = stats["eval_filter"]
+    # --no-smooth gives exactly the filter's map and path
+    proc = uwbnet(
+        "map", str(robot_recording), "--out", str(out), "--particles", "20",
+        "--association", "state", "--eval", "corridor_L_sparse", "--seed", "3", "--no-smooth",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    plain = last_json(proc)
+    assert plain["smoothed"] is False and plain["eval_filter"] is None
+    assert plain["eval"]["trajectory"]["rmse_m"] == raw["trajectory"]["rmse_m"]
+    assert plain["eval"]["walls"] == raw["walls"]
+    assert len(json.loads(out.read_text())["trajectory"]) == 120
 
 
 def test_map_errors_are_one_line(robot_recording: Path, tmp_path: Path) -> None:

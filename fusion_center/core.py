@@ -33,7 +33,11 @@ class FusionCoreConfig:
     ----------
     frame_lag : a frame is processed when a detection of frame ``f + frame_lag`` arrives.
     max_range : the distance (m) from a sensor up to which it is expected to detect a person;
-        capped by the radar's window (half its longest bistatic range).
+        capped by the radar's window (half its longest bistatic range). 20 m (was 15): in a
+        20 m hall a person near one end is seen only by the sensors at the other, 15-18 m
+        away, whose estimates the range gate dropped; the learned detection profile of the
+        farthest distance bin sets how much a miss out there costs a track
+        (docs/integration.md).
     view_margin : angle (rad) added on each side of a sensor's 3 dB beam for the tracker's
         field of view: antennas still see people somewhat outside it (the node DSP keeps
         intersections up to its ``fov_margin`` beyond the beam).
@@ -51,7 +55,7 @@ class FusionCoreConfig:
     """
 
     frame_lag: int = 2
-    max_range: float = 15.0
+    max_range: float = 20.0
     view_margin: float = 0.35
     window_guard: float = WINDOW_GUARD
     blind_zone: bool = False

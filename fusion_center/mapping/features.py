@@ -106,9 +106,20 @@ def merge_walls(
         off = np.abs(walls[:, 1] - walls[i, 1])
         same = (~used) & (cos_ij >= np.cos(angle)) & (off <= dist)
         if overlap_dist > 0.0:
+            # Wall j's distance from wall i's line where the two overlap along it: the
+            # offsets' difference ``off`` is that distance only for parallel lines (at an
+            # angle it grows with the distance from the map origin).
             t = ends @ tang_all[i]  # (w, 2) end points along wall i
-            overlap = (t.max(1) > extent[i, 0]) & (t.min(1) < extent[i, 1])
-            same |= (~used) & (cos_ij >= np.cos(overlap_angle)) & (off <= overlap_dist) & overlap
+            s = ends @ n[i] - walls[i, 1]  # (w, 2) their signed distances from its line
+            lo = np.maximum(t.min(1), extent[i, 0])
+            hi = np.minimum(t.max(1), extent[i, 1])
+            overlap = hi > lo
+            span = t[:, 1] - t[:, 0]
+            slope = np.divide(s[:, 1] - s[:, 0], span, out=np.zeros(len(t)), where=span != 0.0)
+            gap = np.maximum(
+                np.abs(s[:, 0] + (lo - t[:, 0]) * slope), np.abs(s[:, 0] + (hi - t[:, 0]) * slope)
+            )
+            same |= (~used) & (cos_ij >= np.cos(overlap_angle)) & (gap <= overlap_dist) & overlap
         used |= same
         w = hits[same] / hits[same].sum()
         nn = w @ n[same]

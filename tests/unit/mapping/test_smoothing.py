@@ -113,3 +113,20 @@ def test_overlapping_walls_a_little_apart_merge_and_separate_ones_stay() -> None
     big = int(np.argmax(h))
     assert 2.0 < w[big, 1] < 2.1  # hit-weighted
     assert e[big, 0] < 0.05 and e[big, 1] > 3.8  # the union of the extents
+
+
+def test_overlap_merge_measures_the_gap_where_the_walls_overlap_not_at_the_origin() -> None:
+    from fusion_center.mapping.features import merge_walls
+
+    # two walls at 11 degrees whose line offsets differ by 0.2 m, but which overlap 5-8 m
+    # along the line, where they are 0.8-1.4 m apart: two faces, not one seen twice
+    walls = np.array([[0.0, 2.0], [np.radians(11.0), 2.2]])
+    extent = np.array([[5.0, 8.0], [5.0, 8.0]])
+    hits = np.array([30.0, 10.0])
+    kw = {"overlap_dist": 0.3, "overlap_angle": np.radians(12.0)}
+    w, _, _ = merge_walls(walls, extent, hits, dist=0.1, angle=np.radians(6.0), **kw)
+    assert len(w) == 2
+    # the same pair with extents next to the origin, where they are at most 0.26 m apart, merges
+    extent = np.array([[-0.5, 1.0], [-0.5, 1.0]])
+    w, _, _ = merge_walls(walls, extent, hits, dist=0.1, angle=np.radians(6.0), **kw)
+    assert len(w) == 1

@@ -22,11 +22,14 @@ Why the dense multipath starts there: a path via any point of a plane surface is
 as long as the specular path of that plane (the unfolded image path is a straight line), so
 no energy scattered or reflected by the scene's surfaces arrives earlier; the bound is taken
 over the infinite planes (a lower bound for finite walls), for walls only when both ends of
-the link are on the same side. The 802.15.4a model alone starts the rays at the direct path
-(the first within 0.67 ns, 15 % within 0.1 ns): a ray 0.1 ns late is a scatterer within the
-first Fresnel zone of the link, which would obstruct the direct path rather than add an
-echo, and the scenarios place nothing there. In lab_los the earliest reflection, the floor,
-is 1.5-4 ns after the direct path.
+the link are on the same side, and over the free vertical edges of the walls whose line
+separates the ends without blocking the link (energy scattered by an edge beside the line
+of sight). The edges of a wall the link passes through are not bounded: that multipath
+is delayed with the obstructed direct path, as before. The 802.15.4a model alone starts
+the rays at the direct path (the first within 0.67 ns, 15 % within 0.1 ns): a ray 0.1 ns
+late is a scatterer within the first Fresnel zone of the link, which would obstruct the
+direct path rather than add an echo, and the scenarios place nothing there. In lab_los
+the earliest reflection, the floor, is 1.5-4 ns after the direct path.
 
 Each round of the ``[ranging]`` scheme renders one impulse response per message in the
 receiver's window (sample 0 a random few ns before the first path: preamble sync), and the
@@ -45,7 +48,13 @@ import numpy.typing as npt
 from node_agent.dsp.geometry import RadarParams
 from node_agent.dsp.rttoa import RoundTrip
 from protocol.units import C
-from sim_nodes.channel.geometry import Walls, mirror, wall_crossings, wall_side
+from sim_nodes.channel.geometry import (
+    Walls,
+    mirror,
+    segment_intersection,
+    wall_crossings,
+    wall_side,
+)
 from sim_nodes.channel.paths import Antennas, image_paths
 from sim_nodes.channel.stochastic import (
     OFFICE_LOS,
@@ -254,6 +263,20 @@ class RangingSimulator:
             same = side[0] * side[1] > 0.0
             img = mirror(p[None, :], walls.start[same], walls.end[same])
             bounds.append(np.linalg.norm(img - a, axis=-1) - d)
+            # a wall whose line separates the ends without blocking the link (it ends
+            # beside it: a door jamb, a partition's end) scatters from its free vertical
+            # edges; the shortest path via an edge, unfolded about it, bounds that energy
+            u, s = segment_intersection(p, a, walls.start, walls.end)
+            z = p[2] + u * (a[2] - p[2])
+            with np.errstate(invalid="ignore"):
+                crossed = (u > 0.0) & (u < 1.0) & (s >= 0.0) & (s <= 1.0) & (z <= walls.height)
+            beside = (side[0] * side[1] < 0.0) & ~crossed
+            if beside.any():
+                edges = np.concatenate([walls.start[beside], walls.end[beside]])
+                reach = np.linalg.norm(edges - p[:2], axis=-1) + np.linalg.norm(
+                    edges - a[:2], axis=-1
+                )
+                bounds.append(np.hypot(reach, a[2] - p[2]) - d)
         # floor and ceiling reflect only when both ends are on their room side
         h, gamma = self._planes.T
         same = (p[2] - h) * (a[2] - h) > 0.0

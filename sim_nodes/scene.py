@@ -532,6 +532,10 @@ class Scenario(_Model):
             )
         if self.mobiles and (len(self.anchors) == 0 or self.ranging is None):
             raise _FieldError("anchors", "[[mobiles]] need [[anchors]] and a [ranging] table")
+        if self.ranging is not None and self.objects:
+            # the ranging link models walls, the room outline, floor and ceiling only: an
+            # object would neither block nor reflect it, a silently wrong channel
+            raise _FieldError("objects", "the [ranging] link does not model [[objects]] yet")
         refs = [(f"walls[{i}].material", w.material) for i, w in enumerate(self.walls)]
         if self.circle_scan is not None:
             refs.append(("circle_scan.material", self.circle_scan.material))

@@ -146,3 +146,32 @@ def test_unknown_floor_material_is_rejected():
     data["ranging"]["floor_material"] = "marble"
     with pytest.raises(ScenarioError, match="floor_material"):
         parse_scenario(data)
+
+
+def test_a_wall_ending_beside_the_line_of_sight_bounds_the_onset_by_its_free_edge():
+    # a partition whose line separates the tag from rx1 but which ends 10 cm beside the
+    # link: the link stays LOS, and energy scattered by its free edge can arrive 0.04 ns
+    # after the direct path, so the dense multipath may not wait for the floor
+    wall = {"start": [1.07, 0.93], "end": [2.0, 0.0], "thickness": 0.1, "material": "concrete"}
+    sim = _sim(walls=[wall])
+    p = np.array([1.5, 1.5, 1.0])
+    a = sim.anchors["rx1"]
+    assert sim.link_state(p, "rx1").los
+    zs = np.linspace(0.0, 3.0, 3001)
+    edge = np.stack([np.full_like(zs, 1.07), np.full_like(zs, 0.93), zs], 1)
+    d = np.linalg.norm(a - p)
+    via_edge = (np.linalg.norm(edge - p, axis=1) + np.linalg.norm(a - edge, axis=1) - d) / C
+    onset = sim.reflections(p, "rx1").onset
+    assert onset == pytest.approx(via_edge.min() * 1e9, abs=2e-3)
+    assert onset < 0.1 < _floor_excess_ns(p, a)
+
+
+def test_objects_in_a_ranging_scenario_are_rejected_not_ignored():
+    cabinet = {
+        "id": "cabinet",
+        "footprint": [[0.8, 0.8], [1.1, 0.8], [1.1, 1.1], [0.8, 1.1], [0.8, 0.8]],
+        "z": [0.0, 2.0],
+        "material": "concrete",
+    }
+    with pytest.raises(ScenarioError, match=r"objects.*\[ranging\] link does not model"):
+        _sim(objects=[cabinet])

@@ -266,6 +266,11 @@ class NodeAgent:
             self._publish_status(cpu)
         return self._outbox.received - queued
 
+    def add_cpu(self, seconds: float) -> None:
+        """Count CPU time spent for this agent's acquisitions outside :meth:`serve` (its
+        share of a batch simulated ahead, node_agent.group) in ``status.cpu``."""
+        self._cpu_used += seconds
+
     def _run(self) -> None:
         while not self._stop.is_set():
             slot = self.next_slot()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
+from typing import ClassVar
 
 import pytest
 import zenoh
@@ -106,6 +107,19 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, b
         assert sum(s.extra["lateness_ms"]) == s.acquired
 
 
+class _FakeDriver:
+    """Records the batches the group asks it to prepare (``RadarDriver.acquire_ahead``)."""
+
+    batches: ClassVar[list[list[tuple[str, float]]]] = []
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    @classmethod
+    def acquire_ahead(cls, batch: list[tuple[_FakeDriver, SlotTiming]]) -> None:
+        cls.batches.append([(d.name, slot.t) for d, slot in batch])
+
+
 class _FakeAgent:
     """Slots at fixed times; records when each was served (the group's contract only)."""
 
@@ -114,6 +128,11 @@ class _FakeAgent:
         self.late: list[float | None] = []
         self.published: list[tuple[int, float]] = []
         self.config = type("C", (), {"node": name})()
+        self.driver = _FakeDriver(name)
+        self.cpu = 0.0
+
+    def add_cpu(self, seconds: float) -> None:
+        self.cpu += seconds
 
     def start(self, *, threads: bool = True) -> None:
         assert threads is False
@@ -161,6 +180,7 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
     a = _FakeAgent("a", [t0, t0 + 0.020])
     b = _FakeAgent("b", [t0 + 0.003, t0 + 0.023])
     c = _FakeAgent("c", [t0 + 0.006, t0 + 0.026])
+    _FakeDriver.batches = []
     group = SlotOrderGroup([c, a, b], batch_window=0.01)  # type: ignore[list-item]
     group.start()
     try:
@@ -180,6 +200,11 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
         last = c.served[frame][0]
         assert all(x.published[frame][1] >= last for x in (a, b, c))
         assert all(x.published[frame][0] == 1 for x in (a, b, c))
+    # each frame's three acquisitions were prepared together, in slot order, before served
+    assert _FakeDriver.batches == [
+        [("a", a.served[f][0]), ("b", b.served[f][0]), ("c", c.served[f][0])] for f in range(2)
+    ]
+    assert all(x.cpu >= 0.0 for x in (a, b, c))
     with pytest.raises(ValueError, match="batch_window"):
         SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 

@@ -59,6 +59,11 @@ class SlotOrderGroup:
         acquisitions together before they are served (:meth:`RadarDriver.acquire_ahead`: a
         simulated network computes them in one batch, the same impulse responses at about a
         quarter less CPU, docs/capacity.md, seventh round). False: one by one.
+    catch_up : with ``batch_window`` > 0, a slot whose start passed less than this (s) ago
+        when the thread looks for the next slots is still served, late, with its own
+        acquisition time (``NodeAgent.catch_up``); 0 (default): such slots are skipped. A
+        process that waited for a core otherwise loses the slots of all its nodes
+        (docs/capacity.md, seventh round).
 
     ``start()`` and ``stop()`` are idempotent; ``stop`` joins the threads and stops the agents.
     """
@@ -70,6 +75,7 @@ class SlotOrderGroup:
         clock: Callable[[], float] = time.time,
         batch_window: float = 0.0,
         acquire_ahead: bool = True,
+        catch_up: float = 0.0,
     ) -> None:
         if not agents:
             raise ValueError("a SlotOrderGroup needs at least one agent")
@@ -79,6 +85,12 @@ class SlotOrderGroup:
         self.clock = clock
         self.batch_window = batch_window
         self.acquire_ahead = acquire_ahead
+        if not catch_up >= 0.0:
+            raise ValueError(f"catch_up must be >= 0 s, not {catch_up}")
+        if catch_up and not batch_window:
+            raise ValueError("catch_up needs batch_window > 0 (simulated drivers)")
+        for agent in self.agents:
+            agent.catch_up = catch_up
         self._stop = threading.Event()
         # (release time, agent, messages) in the order of the acquisitions: the publisher
         # thread sends them in slot order, as they were acquired, not before their release

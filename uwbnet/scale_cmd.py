@@ -76,6 +76,9 @@ class ScaleConfig:
     # arrives (FusionCoreConfig.frame_lag); the last node process of a frame then has only
     # about frame_lag - 1 frames of slack (docs/capacity.md, seventh round)
     frame_lag: int = 2
+    # --threads batch: a node process still serves a slot whose start passed less than this
+    # (s) ago (SlotOrderGroup catch_up); 0: skipped, as before
+    catch_up: float = 0.0
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -261,6 +264,10 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
     if cfg.threads not in ("process", "agent", "batch"):
         raise ScaleError(f"--threads must be process, agent or batch, not {cfg.threads!r}")
+    if not 0.0 <= cfg.catch_up <= 1.0:
+        raise ScaleError(f"--catch-up must be 0 to 1 s, not {cfg.catch_up}")
+    if cfg.catch_up and cfg.threads != "batch":
+        raise ScaleError("--catch-up needs --threads batch")
     if cfg.frame_lag < 1:
         raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
     if not 0 <= cfg.rt_priority <= 99:
@@ -284,6 +291,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "workers": cfg.workers,
         "rt_priority": cfg.rt_priority,
         "frame_lag": cfg.frame_lag,
+        "catch_up": cfg.catch_up,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

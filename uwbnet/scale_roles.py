@@ -199,7 +199,12 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
             # one acquisition thread serves the agents in slot order (no GIL hand-offs
             # between K workers whose slots follow each other); "batch": one wake-up per frame
             # for all of them, back to back (docs/capacity.md, sixth round)
-            group = SlotOrderGroup(agents, batch_window=BATCH_WINDOW if threads == "batch" else 0)
+            batch = threads == "batch"
+            group = SlotOrderGroup(
+                agents,
+                batch_window=BATCH_WINDOW if batch else 0,
+                catch_up=cfg.get("catch_up", 0.0) if batch else 0.0,
+            )
             group.start()
             stack.callback(group.stop)
         else:

@@ -252,3 +252,42 @@ def test_scale_rejects_a_bad_rt_priority_with_one_line():
 
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--rt-priority", "100"), "--rt-priority")
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--threads", "x"), "--threads")
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--catch-up", "2"), "--catch-up")
+    assert_one_line_error(
+        uwbnet("scale", "--nodes", "4", "--catch-up", "0.01", "--threads", "agent"), "--catch-up"
+    )
+
+
+def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
+    from sim_nodes.record import schedule_message
+
+    network = SimNetwork(load_scenario("foyer3"), seed=3)
+    node = network.node_ids[0]  # slot 0: starts at k * frame period
+    period = network.scenario.frame_period
+    now = [100 * period + 0.005]  # frame 100's slot started 5 ms ago
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        driver = stack.enter_context(SimulatedDriver(network, node))
+        agent = NodeAgent(
+            session, driver, AgentConfig(node=node, net=NET, publish_ir=False), clock=lambda: now[0]
+        )
+        agent.start(threads=False)
+        stack.callback(agent.stop)
+        agent._schedule_in.put(schedule_message(network, period).to_wire())
+        slot = agent.next_slot()
+        assert slot is not None and slot.frame == 101  # skipped: its start has passed
+        with pytest.raises(ValueError, match="batch_window"):
+            SlotOrderGroup([agent], catch_up=0.01)
+        SlotOrderGroup([agent], batch_window=0.01, catch_up=0.01)  # sets agent.catch_up
+        agent._schedule_in.put(schedule_message(network, period, seq=1).to_wire())
+        slot = agent.next_slot()
+        assert slot is not None and slot.frame == 100  # served late instead
+        assert agent.serve(slot) == 1
+        # counted as late (5 ms after its start), not as a missed frame
+        assert agent.counters["late_slots"] == 1 and agent.counters["acquired"] == 1
+        assert agent.counters["dropped"] == 0
+        again = agent.next_slot()
+        assert again is not None and again.frame == 101  # not the same slot twice
+        now[0] += 0.02  # 25 ms after frame 100's slot: beyond the catch-up, 101's is 5 ms ago
+        agent._schedule_in.put(schedule_message(network, period, seq=2).to_wire())
+        assert agent.next_slot().frame == 101  # type: ignore[union-attr]

@@ -19,7 +19,9 @@ agents that fall in one frame together, back to back, and the publisher sends th
 together: one wake-up of each thread per frame. A process woken from sleep pays for cold caches
 (in a plain loop on this machine an acquisition cost about 0.5 ms more after each sleep than
 back to back), so this cuts the CPU per acquisition of a simulated node process by about 40 %
-with 8 nodes per process (docs/capacity.md, sixth round).
+with 8 nodes per process (docs/capacity.md, sixth round). Before serving a batch the thread
+lets the drivers prepare its acquisitions together (``acquire_ahead``: a simulated network
+computes them in one batch, bit for bit the same; seventh round).
 """
 
 from __future__ import annotations
@@ -57,8 +59,9 @@ class SlotOrderGroup:
         slot has started.
     acquire_ahead : with ``batch_window`` > 0, the drivers of a batch prepare its
         acquisitions together before they are served (:meth:`RadarDriver.acquire_ahead`: a
-        simulated network computes them in one batch, the same impulse responses at about a
-        quarter less CPU, docs/capacity.md, seventh round). False: one by one.
+        simulated network computes them in one batch: the same impulse responses, the
+        simulator at about a quarter less CPU, docs/capacity.md, seventh round). False: one
+        by one.
     catch_up : with ``batch_window`` > 0, a slot whose start passed less than this (s) ago
         when the thread looks for the next slots is still served, late, with its own
         acquisition time (``NodeAgent.catch_up``); 0 (default): such slots are skipped. A

@@ -357,8 +357,9 @@ class MSequenceRadar:
 
         Each generator draws the same uniforms as in :meth:`impulse_response`; the system
         response, the Box-Muller transform and the inverse FFT, elementwise or per row, run
-        once over the batch (one numpy call per step instead of one per acquisition: about
-        a quarter of a simulated acquisition's CPU, docs/capacity.md, seventh round).
+        once over the batch (one numpy call per step instead of one per acquisition: with
+        8 acquisitions the simulator costs about a quarter less, docs/capacity.md, seventh
+        round).
 
         Parameters
         ----------

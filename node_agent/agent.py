@@ -106,6 +106,11 @@ class NodeAgent:
         self._pending: SlotTiming | None = None
         self._last_frame: int | None = None
         self._served_t = -math.inf
+        #: How long after its start a slot may still be served (s): 0 skips every slot whose
+        #: start has passed when the next one is looked up. A SlotOrderGroup serving
+        #: simulated drivers sets it (the scene at a past slot time is known): a process that
+        #: waited for a core then serves those slots late instead of losing them.
+        self.catch_up = 0.0
         self._last_query = 0.0
         # CPU time (s) of this agent's acquisitions, and (cpu, monotonic) at the last status
         self._cpu_used = 0.0
@@ -228,7 +233,7 @@ class NodeAgent:
         if self._pending is None and self._schedule is not None and self.tx is not None:
             # after the slot served last: a batch (node_agent.group) may serve a slot before
             # its start, and that slot must not come round again
-            after = max(self.clock(), self._served_t + 1e-6)
+            after = max(self.clock() - self.catch_up, self._served_t + 1e-6)
             self._pending = next_slot(self._schedule, self.tx, after)
         if self._pending is None and time.monotonic() - self._last_query > 1.0:
             self._last_query = time.monotonic()
@@ -265,6 +270,11 @@ class NodeAgent:
             self._status_mark = (self._cpu_used, now)
             self._publish_status(cpu)
         return self._outbox.received - queued
+
+    def add_cpu(self, seconds: float) -> None:
+        """Count CPU time spent for this agent's acquisitions outside :meth:`serve` (its
+        share of a batch simulated ahead, node_agent.group) in ``status.cpu``."""
+        self._cpu_used += seconds
 
     def _run(self) -> None:
         while not self._stop.is_set():

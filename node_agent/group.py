@@ -19,7 +19,9 @@ agents that fall in one frame together, back to back, and the publisher sends th
 together: one wake-up of each thread per frame. A process woken from sleep pays for cold caches
 (in a plain loop on this machine an acquisition cost about 0.5 ms more after each sleep than
 back to back), so this cuts the CPU per acquisition of a simulated node process by about 40 %
-with 8 nodes per process (docs/capacity.md, sixth round).
+with 8 nodes per process (docs/capacity.md, sixth round). Before serving a batch the thread
+lets the drivers prepare its acquisitions together (``acquire_ahead``: a simulated network
+computes them in one batch, bit for bit the same; seventh round).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ import time
 from collections.abc import Callable, Sequence
 
 from node_agent.agent import NodeAgent
+from node_agent.drivers.base import DriverError, RadarDriver
+from node_agent.tdma import SlotTiming
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +57,16 @@ class SlotOrderGroup:
         at every slot time is known in advance); a radar acquires in real time. Every
         message carries its own slot's acquisition time, and none is published before its
         slot has started.
+    acquire_ahead : with ``batch_window`` > 0, the drivers of a batch prepare its
+        acquisitions together before they are served (:meth:`RadarDriver.acquire_ahead`: a
+        simulated network computes them in one batch: the same impulse responses, the
+        simulator at about a quarter less CPU, docs/capacity.md, seventh round). False: one
+        by one.
+    catch_up : with ``batch_window`` > 0, a slot whose start passed less than this (s) ago
+        when the thread looks for the next slots is still served, late, with its own
+        acquisition time (``NodeAgent.catch_up``); 0 (default): such slots are skipped. A
+        process that waited for a core otherwise loses the slots of all its nodes
+        (docs/capacity.md, seventh round).
 
     ``start()`` and ``stop()`` are idempotent; ``stop`` joins the threads and stops the agents.
     """
@@ -63,6 +77,8 @@ class SlotOrderGroup:
         *,
         clock: Callable[[], float] = time.time,
         batch_window: float = 0.0,
+        acquire_ahead: bool = True,
+        catch_up: float = 0.0,
     ) -> None:
         if not agents:
             raise ValueError("a SlotOrderGroup needs at least one agent")
@@ -71,6 +87,13 @@ class SlotOrderGroup:
         self.agents = list(agents)
         self.clock = clock
         self.batch_window = batch_window
+        self.acquire_ahead = acquire_ahead
+        if not catch_up >= 0.0:
+            raise ValueError(f"catch_up must be >= 0 s, not {catch_up}")
+        if catch_up and not batch_window:
+            raise ValueError("catch_up needs batch_window > 0 (simulated drivers)")
+        for agent in self.agents:
+            agent.catch_up = catch_up
         self._stop = threading.Event()
         # (release time, agent, messages) in the order of the acquisitions: the publisher
         # thread sends them in slot order, as they were acquired, not before their release
@@ -144,12 +167,34 @@ class SlotOrderGroup:
 
     def _serve_batch(self, agents: list[NodeAgent], first: float, last: float) -> None:
         late = self.clock() - first
+        batch = []
         for agent in agents:
             slot = agent.next_slot()
             if slot is None or slot.t > last:
                 continue  # a new schedule took the slot away or moved it out of the batch
+            batch.append((agent, slot))
+        if self.acquire_ahead and len(batch) > 1:
+            self._acquire_ahead(batch)
+        for agent, slot in batch:
             self._order.append((last, agent, agent.serve(slot, late=late)))
         self._queued.set()  # one wake-up of the publisher per batch
+
+    def _acquire_ahead(self, batch: list[tuple[NodeAgent, SlotTiming]]) -> None:
+        """Let each driver class prepare its drivers' acquisitions of the batch together
+        (:meth:`RadarDriver.acquire_ahead`); their CPU time is shared out over the agents'
+        ``status.cpu``. A failure leaves each slot to its own acquisition."""
+        by_class: dict[type[RadarDriver], list[tuple[RadarDriver, SlotTiming]]] = {}
+        for agent, slot in batch:
+            by_class.setdefault(type(agent.driver), []).append((agent.driver, slot))
+        cpu0 = time.thread_time()
+        for cls, items in by_class.items():
+            try:
+                cls.acquire_ahead(items)
+            except (DriverError, ValueError) as exc:
+                log.warning("acquisitions of a batch not prepared together: %s", exc)
+        share = (time.thread_time() - cpu0) / len(batch)
+        for agent, _ in batch:
+            agent.add_cpu(share)
 
     def _publish_loop(self) -> None:
         while not self._flushing.is_set():

@@ -16,6 +16,7 @@ diffraction and the stochastic scatterer clusters, one realization per seed).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -483,6 +484,41 @@ class SimNetwork:
         spec = self._static[node] + self.people_spectrum(node, t)
         h = self.radar.impulse_response(spec, self._rng[node])
         return f"{node}/tx", self._nodes[node].rx_names, h
+
+    def acquire_many(
+        self, requests: Sequence[tuple[str, float]]
+    ) -> list[tuple[str, tuple[str, ...], npt.NDArray[np.float32]]]:
+        """:meth:`acquire` of several ``(node, t)`` at once, in the order given.
+
+        The people's echoes are synthesised per acquisition as in :meth:`acquire`; the
+        static channel, the system response, the noise transform and the inverse FFT run
+        once over the batch (:meth:`MSequenceRadar.impulse_responses`). Each node's
+        generator draws what it would in :meth:`acquire` (the amplitude fluctuation, then the
+        noise), and the people echoes use no random numbers, so every impulse response is
+        bit for bit what the same calls of :meth:`acquire` in this order give. A node that
+        appears twice (two of its acquisitions in one batch) would draw its second
+        fluctuation before its first noise: then the requests are served one by one.
+
+        Returns
+        -------
+        list of ``(tx, rx, h)`` as :meth:`acquire` returns them; the ``h`` are rows of one
+        array.
+        """
+        nodes = [node for node, _ in requests]
+        for node in nodes:
+            if node not in self._nodes:
+                raise KeyError(f"unknown node {node!r}")
+        n_rx = {self._nodes[node].rx.position.shape[0] for node in nodes}
+        if len(set(nodes)) < len(nodes) or len(n_rx) > 1:
+            return [self.acquire(node, t) for node, t in requests]
+        if not requests:
+            return []
+        spec = np.empty((len(requests), n_rx.pop(), self.radar.n_bins), np.complex64)
+        for i, (node, t) in enumerate(requests):
+            # the same complex64 rounding as acquire's asarray
+            spec[i] = self._static[node] + self.people_spectrum(node, t)
+        h = self.radar.impulse_responses(spec, [self._rng[node] for node in nodes])
+        return [(f"{node}/tx", self._nodes[node].rx_names, h[i]) for i, node in enumerate(nodes)]
 
     def static_response(self, node: str) -> npt.NDArray[np.float32]:
         """Noise-free background (coupling + walls) of ``node``, float32 (n_rx, n)."""

@@ -5,7 +5,8 @@ sensors) it measures, in CPU seconds of this single-threaded process (independen
 the machine runs):
 
 * ``sim_us_per_ir``: simulating one acquisition (people beyond 20 m left out, as in
-  ``uwbnet scale``);
+  ``uwbnet scale``); ``sim_batch8_us_per_ir``: the same acquisitions simulated 8 adjacent
+  slots at a time (``SimNetwork.acquire_many``, as a ``uwbnet scale`` node process does);
 * ``dsp_us_per_ir``: the node DSP chain on it, plus encoding the ``detections`` message;
 * ``fusion_us_per_scan``: decoding a ``detections`` message and frame assembly + GM-PHD
   update, per scan, with one fusion center and with the scans split over 4 cell workers
@@ -29,6 +30,10 @@ def _cpu(fn: Any) -> float:
     c0 = time.process_time()
     fn()
     return time.process_time() - c0
+
+
+#: Acquisitions per batch of ``sim_batch8_us_per_ir``: ``uwbnet scale``'s nodes per process.
+BATCH = 8
 
 
 def _one_size(n: int, frames: int, seed: int) -> dict[str, Any]:
@@ -69,6 +74,20 @@ def _one_size(n: int, frames: int, seed: int) -> dict[str, Any]:
             raw.append(row)
 
     sim_cpu = _cpu(simulate)
+    batched = SimNetwork(scen, seed, people_range=PEOPLE_RANGE)
+
+    def simulate_batched() -> None:
+        # as a uwbnet scale node process serves them: 8 adjacent slots in one batch
+        for f in range(frames):
+            for s0 in range(0, n, BATCH):
+                batched.acquire_many(
+                    [
+                        (node, 2.0 + f * period + (s0 + k) * period / n)
+                        for k, node in enumerate(ids[s0 : s0 + BATCH])
+                    ]
+                )
+
+    sim_batch_cpu = _cpu(simulate_batched)
     wires: list[list[bytes]] = []
     dsp_cpu = 0.0
     for f, row in enumerate(raw):
@@ -114,6 +133,7 @@ def _one_size(n: int, frames: int, seed: int) -> dict[str, Any]:
     return {
         "people": people,
         "sim_us_per_ir": round(1e6 * sim_cpu / (frames * n), 1),
+        "sim_batch8_us_per_ir": round(1e6 * sim_batch_cpu / (frames * n), 1),
         "dsp_us_per_ir": round(1e6 * dsp_cpu / measured, 1),
         "fusion_us_per_scan": round(1e6 * one_cpu / measured, 1),
         "fusion4_us_per_scan": round(1e6 * four_cpu / measured, 1),

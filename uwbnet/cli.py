@@ -369,6 +369,8 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 threads=args.threads,
                 spread_slots=args.spread_slots,
                 rt_priority=args.rt_priority,
+                frame_lag=args.frame_lag,
+                catch_up=args.catch_up,
                 seed=args.seed,
                 out=args.out,
             )
@@ -952,6 +954,21 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         metavar="P",
         help="run every process SCHED_FIFO at priority P (1-99, root; default 0: off)",
+    )
+    sc.add_argument(
+        "--frame-lag",
+        type=int,
+        default=2,
+        help="the fusion center fuses a frame once a detection of the frame this many frames "
+        "later arrives (default 2)",
+    )
+    sc.add_argument(
+        "--catch-up",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="--threads batch: still serve a slot whose start passed less than S seconds ago "
+        "(default 0: skip it)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

@@ -72,6 +72,13 @@ class ScaleConfig:
     spread_slots: bool = False
     # SCHED_FIFO priority of every scale process (0: the normal scheduler); root only
     rt_priority: int = 0
+    # the fusion center fuses frame f, complete or not, once a detection of frame f + frame_lag
+    # arrives (FusionCoreConfig.frame_lag); the last node process of a frame then has only
+    # about frame_lag - 1 frames of slack (docs/capacity.md, seventh round)
+    frame_lag: int = 2
+    # --threads batch: a node process still serves a slot whose start passed less than this
+    # (s) ago (SlotOrderGroup catch_up); 0: skipped, as before
+    catch_up: float = 0.0
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -257,6 +264,12 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError("--nodes, --hosts and --workers must be >= 1, --people >= 0")
     if cfg.threads not in ("process", "agent", "batch"):
         raise ScaleError(f"--threads must be process, agent or batch, not {cfg.threads!r}")
+    if not 0.0 <= cfg.catch_up <= 1.0:
+        raise ScaleError(f"--catch-up must be 0 to 1 s, not {cfg.catch_up}")
+    if cfg.catch_up and cfg.threads != "batch":
+        raise ScaleError("--catch-up needs --threads batch")
+    if cfg.frame_lag < 1:
+        raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
     if not 0 <= cfg.rt_priority <= 99:
         raise ScaleError("--rt-priority must be 0 (off) to 99")
     if cfg.rt_priority and os.geteuid() != 0:
@@ -277,6 +290,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "seed": cfg.seed,
         "workers": cfg.workers,
         "rt_priority": cfg.rt_priority,
+        "frame_lag": cfg.frame_lag,
+        "catch_up": cfg.catch_up,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:
@@ -396,6 +411,8 @@ def analyse(
     strips = cells(base | {"workers": max(cfg.workers, 1)})
     crossings = border_crossings(strips, [s for s in truth if w0 <= s[0] < w1])
     switches = figures.get("id_switches")
+    counters_path = tracks_path.with_name("fusion_counters.json")
+    counters = json.loads(counters_path.read_text()) if counters_path.exists() else {}
     return {
         "nodes": cfg.nodes,
         "people": cfg.people,
@@ -405,6 +422,8 @@ def analyse(
         "drop_rate": round(1.0 - len(acquired) / expected, 5) if expected else 0.0,
         "acquisitions_expected": expected,
         "acquisitions_fused": len(acquired),
+        # the whole run's: detections that arrived after the fusion center fused their frame
+        "late_detections": counters.get("late"),
         "detections_per_s": round(len(acquired) / (w1 - w0), 1),
         "track_updates_per_s": round(updates / (w1 - w0), 1),
         "ospa_mean": _round(figures.get("ospa_p2_mean")),

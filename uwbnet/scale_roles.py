@@ -19,6 +19,7 @@ time, whose 0 is the schedule's TDMA epoch.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import os
@@ -73,6 +74,13 @@ def _see_walls(fusion: Any, cfg: dict[str, Any]) -> None:
         tracker.sight = wall_sight(building(cfg))
 
 
+def _core(cfg: dict[str, Any]) -> Any:
+    """The fusion core's frame assembly, with the run's ``frame_lag``."""
+    from fusion_center.core import FusionCoreConfig
+
+    return FusionCoreConfig(frame_lag=cfg.get("frame_lag", 2))
+
+
 def _session(cfg: dict[str, Any], *, router: bool = False) -> zenoh.Session:
     if router:
         return zenoh.open(session_config(mode="router", listen=[cfg["listen"]]))
@@ -111,7 +119,9 @@ def run_hub(cfg: dict[str, Any], stop: threading.Event) -> None:
         # launched: the people are where the scenario says when the measurement starts.
         settle_heap()
         epoch = time.time() + 0.5
-        fusion = FusionService(session, FusionConfig(net=cfg["net"], track=single), epoch=epoch)
+        fusion = FusionService(
+            session, FusionConfig(net=cfg["net"], track=single, core=_core(cfg)), epoch=epoch
+        )
         _see_walls(fusion, cfg)
         fusion.start()
         stack.callback(fusion.stop)
@@ -126,7 +136,16 @@ def run_hub(cfg: dict[str, Any], stop: threading.Event) -> None:
             if not announced and sched is not None and len(sched.slots) >= n_nodes:
                 _say(f"scheduled {len(sched.slots)}")
                 announced = True
+        # what the fusion core dropped (late: detections whose frame was already fused)
+        counters = dataclasses.asdict(fusion.core.counters)
+    _write_json(Path(cfg["out"]) / "fusion_counters.json", counters)
     _write_tracks(Path(cfg["out"]) / "tracks.jsonl", received)
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(json.dumps(data), encoding="utf-8")
+    partial.replace(path)
 
 
 def _write_tracks(path: Path, received: list[tuple[float, bytes]]) -> None:
@@ -180,7 +199,12 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
             # one acquisition thread serves the agents in slot order (no GIL hand-offs
             # between K workers whose slots follow each other); "batch": one wake-up per frame
             # for all of them, back to back (docs/capacity.md, sixth round)
-            group = SlotOrderGroup(agents, batch_window=BATCH_WINDOW if threads == "batch" else 0)
+            batch = threads == "batch"
+            group = SlotOrderGroup(
+                agents,
+                batch_window=BATCH_WINDOW if batch else 0,
+                catch_up=cfg.get("catch_up", 0.0) if batch else 0.0,
+            )
             group.start()
             stack.callback(group.stop)
         else:
@@ -207,6 +231,7 @@ def run_worker(cfg: dict[str, Any], stop: threading.Event) -> None:
                 nodes=tuple(cfg["ids"]),
                 schedule=False,
                 tracks_key=keys.cell_tracks_key(cfg["net"], cell),
+                core=_core(cfg),
             ),
         )
         _see_walls(fusion, cfg)

@@ -10,6 +10,7 @@ import abc
 import dataclasses
 import time
 import warnings
+from collections.abc import Sequence
 from types import TracebackType
 from typing import Any, Self
 
@@ -86,6 +87,14 @@ class RadarDriver(abc.ABC):
             raise DriverError("acquisition contains NaN or Inf")
         self.acquired += 1
         return acq
+
+    @classmethod  # noqa: B027 - optional hook, empty by default
+    def acquire_ahead(cls, batch: Sequence[tuple[RadarDriver, SlotTiming]]) -> None:
+        """Prepare the acquisitions of ``batch`` (drivers of this class, their slots) in one
+        go before they are acquired one by one with :meth:`acquire`; the default does
+        nothing. A simulated driver computes them together (a
+        :class:`node_agent.group.SlotOrderGroup` serving a batch of slots); a radar, which
+        acquires in real time, keeps the default."""
 
     def close(self) -> None:
         """Release the device. Idempotent."""

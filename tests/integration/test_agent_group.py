@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
+from typing import ClassVar
 
 import pytest
 import zenoh
@@ -106,6 +107,19 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, b
         assert sum(s.extra["lateness_ms"]) == s.acquired
 
 
+class _FakeDriver:
+    """Records the batches the group asks it to prepare (``RadarDriver.acquire_ahead``)."""
+
+    batches: ClassVar[list[list[tuple[str, float]]]] = []
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    @classmethod
+    def acquire_ahead(cls, batch: list[tuple[_FakeDriver, SlotTiming]]) -> None:
+        cls.batches.append([(d.name, slot.t) for d, slot in batch])
+
+
 class _FakeAgent:
     """Slots at fixed times; records when each was served (the group's contract only)."""
 
@@ -114,6 +128,11 @@ class _FakeAgent:
         self.late: list[float | None] = []
         self.published: list[tuple[int, float]] = []
         self.config = type("C", (), {"node": name})()
+        self.driver = _FakeDriver(name)
+        self.cpu = 0.0
+
+    def add_cpu(self, seconds: float) -> None:
+        self.cpu += seconds
 
     def start(self, *, threads: bool = True) -> None:
         assert threads is False
@@ -161,6 +180,7 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
     a = _FakeAgent("a", [t0, t0 + 0.020])
     b = _FakeAgent("b", [t0 + 0.003, t0 + 0.023])
     c = _FakeAgent("c", [t0 + 0.006, t0 + 0.026])
+    _FakeDriver.batches = []
     group = SlotOrderGroup([c, a, b], batch_window=0.01)  # type: ignore[list-item]
     group.start()
     try:
@@ -180,6 +200,11 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
         last = c.served[frame][0]
         assert all(x.published[frame][1] >= last for x in (a, b, c))
         assert all(x.published[frame][0] == 1 for x in (a, b, c))
+    # each frame's three acquisitions were prepared together, in slot order, before served
+    assert _FakeDriver.batches == [
+        [("a", a.served[f][0]), ("b", b.served[f][0]), ("c", c.served[f][0])] for f in range(2)
+    ]
+    assert all(x.cpu >= 0.0 for x in (a, b, c))
     with pytest.raises(ValueError, match="batch_window"):
         SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 
@@ -227,3 +252,42 @@ def test_scale_rejects_a_bad_rt_priority_with_one_line():
 
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--rt-priority", "100"), "--rt-priority")
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--threads", "x"), "--threads")
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--catch-up", "2"), "--catch-up")
+    assert_one_line_error(
+        uwbnet("scale", "--nodes", "4", "--catch-up", "0.01", "--threads", "agent"), "--catch-up"
+    )
+
+
+def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
+    from sim_nodes.record import schedule_message
+
+    network = SimNetwork(load_scenario("foyer3"), seed=3)
+    node = network.node_ids[0]  # slot 0: starts at k * frame period
+    period = network.scenario.frame_period
+    now = [100 * period + 0.005]  # frame 100's slot started 5 ms ago
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        driver = stack.enter_context(SimulatedDriver(network, node))
+        agent = NodeAgent(
+            session, driver, AgentConfig(node=node, net=NET, publish_ir=False), clock=lambda: now[0]
+        )
+        agent.start(threads=False)
+        stack.callback(agent.stop)
+        agent._schedule_in.put(schedule_message(network, period).to_wire())
+        slot = agent.next_slot()
+        assert slot is not None and slot.frame == 101  # skipped: its start has passed
+        with pytest.raises(ValueError, match="batch_window"):
+            SlotOrderGroup([agent], catch_up=0.01)
+        SlotOrderGroup([agent], batch_window=0.01, catch_up=0.01)  # sets agent.catch_up
+        agent._schedule_in.put(schedule_message(network, period, seq=1).to_wire())
+        slot = agent.next_slot()
+        assert slot is not None and slot.frame == 100  # served late instead
+        assert agent.serve(slot) == 1
+        # counted as late (5 ms after its start), not as a missed frame
+        assert agent.counters["late_slots"] == 1 and agent.counters["acquired"] == 1
+        assert agent.counters["dropped"] == 0
+        again = agent.next_slot()
+        assert again is not None and again.frame == 101  # not the same slot twice
+        now[0] += 0.02  # 25 ms after frame 100's slot: beyond the catch-up, 101's is 5 ms ago
+        agent._schedule_in.put(schedule_message(network, period, seq=2).to_wire())
+        assert agent.next_slot().frame == 101  # type: ignore[union-attr]

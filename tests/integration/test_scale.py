@@ -31,6 +31,7 @@ def _check(result, tmp_path):
         ("ospa_mean", float),
         ("nodes", int),
         ("people", int),
+        ("late_detections", int),
     ):
         assert isinstance(result[key], kind), (key, result[key])
     assert result["nodes"] == 12 and result["people"] == 2 and result["workers"] == 2
@@ -94,3 +95,4 @@ def test_scale_over_network_namespaces(tmp_path):
 def test_scale_rejects_bad_arguments_with_one_line():
     assert_one_line_error(uwbnet("scale", "--nodes", "0"), "--nodes")
     assert_one_line_error(uwbnet("scale", "--nodes", "x"), "--nodes")
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--frame-lag", "0"), "--frame-lag")

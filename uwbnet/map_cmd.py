@@ -160,16 +160,20 @@ def map_recording(
     emit(mapper.finish())
     the_map = filter_map = mapper.map()
     filter_traj = traj
+    # the filter's own rate (what the live service must sustain); smoothing runs once after
+    filter_s = time.perf_counter() - t_start
+    stats.acquisitions_per_s = round(stats.ir / max(filter_s, 1e-9), 1)
     if smooth:
         c0 = time.process_time()
         smoothed = mapper.smooth()
         stats.smooth_cpu_s = round(time.process_time() - c0, 2)
         if smoothed is not None:
-            the_map, path = smoothed
-            traj = [[float(v) for v in row] for row in path]
+            the_map, poses = smoothed
+            traj = [[float(v) for v in row] for row in poses]
             stats.smoothed = True
+        else:
+            log.warning("%s: not smoothed (an ir without odometry): the filter's map", path)
     stats.wall_s = round(time.perf_counter() - t_start, 2)
-    stats.acquisitions_per_s = round(stats.ir / max(stats.wall_s, 1e-9), 1)
     stats.walls, stats.corners, stats.points = (
         len(the_map.walls),
         len(the_map.corners),

@@ -158,8 +158,11 @@ class GmPhdConfig:
         two-way gain as well as the distance (radar equation: :math:`G_t(\theta) G_r(\theta)
         / (d_1^2 d_2^2)`), so a sensor that sees a person 60° off its boresight detects it far
         less often than one that sees it on the boresight at the same distance. (0.5, 0.8):
-        with the fusion centre's default view margin (0.35 rad on each side of the 3 dB beam
-        of about 90-110°) 0.8 is about the 3 dB edge, 0.5 about 0.7 of it. Measured on the
+        the half view includes the fusion centre's view margin (0.35 rad on each side), so
+        for 3 dB beams of 1.5-2.1 rad the 3 dB edge is at 0.68-0.75 of it; 0.8 lies just
+        outside the 3 dB beam and 0.5 at about 0.7 of the 3 dB half beam. The bins move with
+        ``FusionCoreConfig.view_margin``. The edges were chosen on the hall20x12 proxy; a
+        0.05 shift of either edge moves its count by up to 8 points. Measured on the
         outside proxy recordings: without it, a person walking along a wall, seen by every
         sensor at a wide angle, kept the distance bins' ``p_D`` of people seen head-on, and
         each frame without a detection cost the track most of its weight
@@ -247,6 +250,12 @@ class GmPhdConfig:
     duplicate_steps: int = 25
     occlusion_radius: float = 0.35
     occluded_factor: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("detection_range_bins", "detection_angle_bins"):
+            edges = np.asarray(getattr(self, name), float)
+            if edges.size and (np.any(edges <= 0.0) or np.any(np.diff(edges) <= 0.0)):
+                raise ValueError(f"{name} must be positive and increasing, got {edges.tolist()}")
 
 
 @dataclass(slots=True)
@@ -955,8 +964,13 @@ class GmPhdTracker(Tracker):
         profiles = np.empty((cols.size, nb))
         for c, i in enumerate(cols.tolist()):
             profile = self.detection_profiles.get(scans[i].sensor)
-            if profile is None:
-                profile = np.full(nb, cfg.detection_probability)
+            if profile is None or profile.size != nb:
+                # new sensor, or a profile learned with other bins (a config swapped on a
+                # live tracker): keep what was learned per distance when it can be kept
+                if profile is not None and profile.size == edges.size + 1:
+                    profile = np.repeat(profile, n_a)
+                else:
+                    profile = np.full(nb, cfg.detection_probability)
                 self.detection_profiles[scans[i].sensor] = profile
             profiles[c] = profile
         v = vis[:, cols]

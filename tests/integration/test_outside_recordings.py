@@ -38,8 +38,13 @@ FLOOR_COUNT = 0.25
 # Configurations where a goal is not met yet, and why (issue 2 closing note). A listed
 # configuration that misses a goal is reported as xfail with its figures; one not listed fails.
 KNOWN_GAPS: dict[str, str] = {
-    # None since the tracker learns its detection profiles per distance and bearing and the
-    # range gate is at 20 m (hall20x12: correct count 67.0 -> 75.4 %, docs/integration.md).
+    # The seed-22 hall (the first config) meets the count goal since the tracker learns its
+    # detection profiles per distance and bearing (67.0 -> 75.4 %, by 5 of 1,280 updates;
+    # the bin edges were chosen on it). Other seeds of the same hall do not, yet
+    # (docs/integration.md): people entering at a wall inside a cropped window's blind zone,
+    # two labels on one person.
+    "hall20x12_6s_3to5p_complex_seed122": "count 74.9 % (was 82.3 % before the bearing bins)",
+    "hall20x12_6s_3to5p_complex_seed422": "count 65.4 % (56.9 % before)",
 }
 
 CONFIGS = {
@@ -52,6 +57,15 @@ CONFIGS = {
     # network time starting at a Unix epoch as a field recording would.
     "hall20x12_6s_3to5p_complex": OutsideConfig(
         seed=22, hall=(20.0, 12.0), n_sensors=6, n_initial=4, n_min=3, n_max=5,
+        duration=35.0, radar="complex", t_start=1_700_000_000.0, net="site-b",
+    ),
+    # The same hall with other draws (sensor placement, people, radar), kept in view.
+    "hall20x12_6s_3to5p_complex_seed122": OutsideConfig(
+        seed=122, hall=(20.0, 12.0), n_sensors=6, n_initial=4, n_min=3, n_max=5,
+        duration=35.0, radar="complex", t_start=1_700_000_000.0, net="site-b",
+    ),
+    "hall20x12_6s_3to5p_complex_seed422": OutsideConfig(
+        seed=422, hall=(20.0, 12.0), n_sensors=6, n_initial=4, n_min=3, n_max=5,
         duration=35.0, radar="complex", t_start=1_700_000_000.0, net="site-b",
     ),
     # Small hall, 3 sensors, 2 people, real baseband radar.

@@ -171,3 +171,34 @@ def test_the_detection_profile_learns_that_a_sensor_misses_people_at_its_beam_ed
     # Without bearing bins, the one distance bin mixes both people.
     (mixed,) = _edge_walk(())[2:3]
     assert edge + 0.2 < mixed < head_on - 0.1
+
+
+def test_profile_bins_are_validated_and_a_profile_of_other_bins_is_rebuilt() -> None:
+    from fusion_center.tracking.gmphd import GmPhdConfig
+
+    with pytest.raises(ValueError, match="detection_angle_bins"):
+        GmPhdConfig(detection_angle_bins=(0.8, 0.5))
+    with pytest.raises(ValueError, match="detection_range_bins"):
+        GmPhdConfig(detection_range_bins=(0.0, 3.0))
+    # a profile learned per distance only (6 bins) on a tracker that now bins by bearing too
+    tracker = GmPhdTracker(GmPhdConfig())
+    learned = np.linspace(0.3, 0.8, 6)
+    tracker.detection_profiles["s"] = learned.copy()
+    for k in range(20):  # a person 6 m ahead on s's boresight, seen by h too
+        scans = [
+            SensorScan(
+                sensor=name, t=k * FRAME + dt, positions=np.array([[6.0, 0.0]]),
+                cov=np.eye(2)[None] * 0.01, origin=np.array(origin), boresight=boresight,
+                beamwidth=2.0, max_range=12.0,
+            )
+            for name, dt, origin, boresight in (
+                ("s", 0.0, (0.0, 0.0), 0.0), ("h", 0.001, (6.0, 8.0), -math.pi / 2)
+            )
+        ]  # fmt: skip
+        tracker.step(k * FRAME + 0.002, scans)
+    profile = tracker.detection_profiles["s"].reshape(6, 3)
+    # every distance bin keeps what it learned in each bearing bin, except where the
+    # person is (5-7 m, head-on) and may have moved it
+    untouched = np.ones((6, 3), bool)
+    untouched[2, 0] = False
+    np.testing.assert_array_equal(profile[untouched], np.repeat(learned, 3)[untouched.ravel()])

@@ -234,11 +234,26 @@ class NodeAgent:
             # after the slot served last: a batch (node_agent.group) may serve a slot before
             # its start, and that slot must not come round again
             after = max(self.clock() - self.catch_up, self._served_t + 1e-6)
-            self._pending = next_slot(self._schedule, self.tx, after)
+            slot = next_slot(self._schedule, self.tx, after)
+            # and in a later frame: a schedule change can move this node's slot later in
+            # the frame just served (a node sorted before it joined), and a batch serving
+            # ahead or a catch-up would then acquire that frame twice
+            while slot is not None and self._last_frame is not None:
+                if slot.frame > self._last_frame:
+                    break
+                slot = next_slot(self._schedule, self.tx, slot.t + 1e-6)
+            self._pending = slot
         if self._pending is None and time.monotonic() - self._last_query > 1.0:
             self._last_query = time.monotonic()
             self._query_schedule()
         return self._pending
+
+    def skip_until(self, t: float) -> None:
+        """Give up the slots starting up to ``t`` (s, node clock) unserved, e.g. after their
+        service failed: they are not tried again, and count as ``dropped`` once a later
+        slot is served."""
+        self._pending = None
+        self._served_t = max(self._served_t, t)
 
     def serve(self, slot: SlotTiming, *, late: float | None = None) -> int:
         """Acquire, process and queue the messages of ``slot`` (its start has come), and send

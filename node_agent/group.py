@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from node_agent.agent import NodeAgent
-from node_agent.drivers.base import DriverError, RadarDriver
+from node_agent.drivers.base import RadarDriver
 from node_agent.tdma import SlotTiming
 
 log = logging.getLogger(__name__)
@@ -88,8 +88,9 @@ class SlotOrderGroup:
         self.clock = clock
         self.batch_window = batch_window
         self.acquire_ahead = acquire_ahead
-        if not catch_up >= 0.0:
-            raise ValueError(f"catch_up must be >= 0 s, not {catch_up}")
+        self.errors = 0  # unexpected failures of a slot's service (logged)
+        if not 0.0 <= catch_up <= 1.0:
+            raise ValueError(f"catch_up must be 0 to 1 s, not {catch_up}")
         if catch_up and not batch_window:
             raise ValueError("catch_up needs batch_window > 0 (simulated drivers)")
         for agent in self.agents:
@@ -148,13 +149,23 @@ class SlotOrderGroup:
             wait = first - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 break
-            if self.batch_window == 0.0:
-                self._serve_one(self.agents[pending[0][1]])
-            else:
-                # the batch: the earliest slot and those starting within the window after it
-                batch = [i for t, i in pending if t <= first + self.batch_window]
-                last = pending[len(batch) - 1][0]
-                self._serve_batch([self.agents[i] for i in batch], first, last)
+            # the batch: the earliest slot and those starting within the window after it
+            batch = [i for t, i in pending if t <= first + self.batch_window]
+            last = pending[len(batch) - 1][0]
+            try:
+                if self.batch_window == 0.0:
+                    self._serve_one(self.agents[pending[0][1]])
+                else:
+                    self._serve_batch([self.agents[i] for i in batch], first, last)
+            except Exception:
+                # one thread serves every node of the process: an unexpected error in one
+                # slot must not end them all; counted and logged, those slots given up (not
+                # retried in a loop), the next ones served
+                self.errors += 1
+                if self.errors <= 10 or self.errors % 1000 == 0:  # not 50 tracebacks a second
+                    log.exception("slot service failed (%d so far)", self.errors)
+                for i in batch:
+                    self.agents[i].skip_until(last)
 
     def _serve_one(self, agent: NodeAgent) -> None:
         slot = agent.next_slot()
@@ -190,8 +201,10 @@ class SlotOrderGroup:
         for cls, items in by_class.items():
             try:
                 cls.acquire_ahead(items)
-            except (DriverError, ValueError) as exc:
-                log.warning("acquisitions of a batch not prepared together: %s", exc)
+            except Exception as exc:  # an optimisation: never let it stop the process's nodes
+                # (a failure part-way may have advanced a simulated node's random stream,
+                # so its next impulse responses differ from the per-slot path's)
+                log.warning("acquisitions of a batch not prepared together: %r", exc)
         share = (time.thread_time() - cpu0) / len(batch)
         for agent, _ in batch:
             agent.add_cpu(share)

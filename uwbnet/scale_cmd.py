@@ -282,6 +282,9 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         netns = NetnsHosts(cfg.hosts)
     out_dir = Path(cfg.out) if cfg.out else Path(tempfile.mkdtemp(prefix="uwbnet-scale."))
     out_dir.mkdir(parents=True, exist_ok=True)
+    # a reused --out must not lend this run an earlier run's output
+    for stale in ("tracks.jsonl", "fusion_counters.json"):
+        (out_dir / stale).unlink(missing_ok=True)
     port = free_tcp_port()
     base = {
         "net": cfg.net,
@@ -423,7 +426,8 @@ def analyse(
         "acquisitions_expected": expected,
         "acquisitions_fused": len(acquired),
         # the whole run's: detections that arrived after the fusion center fused their frame
-        "late_detections": counters.get("late"),
+        # (the hub's; with several workers the cells assemble the frames and this is None)
+        "late_detections": counters.get("late") if cfg.workers <= 1 else None,
         "detections_per_s": round(len(acquired) / (w1 - w0), 1),
         "track_updates_per_s": round(updates / (w1 - w0), 1),
         "ospa_mean": _round(figures.get("ospa_p2_mean")),

@@ -155,6 +155,35 @@ class _FakeAgent:
         if limit:  # the group's final flush (None) finds nothing left
             self.published.append((limit, time.time()))
 
+    def skip_until(self, t: float) -> None:
+        self.times = [x for x in self.times if x > t]
+
+
+class _BrokenAgent(_FakeAgent):
+    """Its first slot's service raises an unexpected error (a bug, not a driver error)."""
+
+    def serve(self, slot: SlotTiming, *, late: float | None = None) -> int:
+        if not self.served and not getattr(self, "failed", False):
+            self.failed = True
+            raise RuntimeError("a bug in one slot")
+        return super().serve(slot, late=late)
+
+
+@pytest.mark.parametrize("batch_window", [0.0, 0.01])
+def test_an_unexpected_error_in_one_slot_does_not_stop_the_process_nodes(batch_window):
+    t0 = time.time() + 0.05
+    a = _FakeAgent("a", [t0, t0 + 0.020, t0 + 0.040])
+    b = _BrokenAgent("b", [t0 + 0.003, t0 + 0.023, t0 + 0.043])
+    group = SlotOrderGroup([a, b], batch_window=batch_window)  # type: ignore[list-item]
+    group.start()
+    try:
+        _wait_for(lambda: not (a.times or b.times), 5.0, "all slots served or given up")
+    finally:
+        group.stop()
+    assert group.errors == 1
+    assert [slot for slot, _ in b.served] == [t0 + 0.023, t0 + 0.043]  # the failed one skipped
+    assert len(a.served) == 3 if batch_window == 0.0 else len(a.served) >= 2
+
 
 def test_group_serves_the_earliest_slot_first_and_never_early():
     t0 = time.time() + 0.05
@@ -291,3 +320,42 @@ def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
         now[0] += 0.02  # 25 ms after frame 100's slot: beyond the catch-up, 101's is 5 ms ago
         agent._schedule_in.put(schedule_message(network, period, seq=2).to_wire())
         assert agent.next_slot().frame == 101  # type: ignore[union-attr]
+
+
+def test_a_schedule_change_that_moves_the_slot_later_does_not_serve_a_frame_twice(hub_endpoint):
+    from protocol.messages import Slot, TdmaSchedule
+
+    network = SimNetwork(load_scenario("foyer3"), seed=3)
+    ids = network.node_ids
+    period = network.scenario.frame_period
+
+    def schedule(txs: list[str], seq: int) -> bytes:
+        d = period / len(txs)
+        slots = tuple(
+            Slot(slot=i, tx=f"{n}/tx", start=i * d, duration=d) for i, n in enumerate(txs)
+        )
+        return TdmaSchedule(
+            src="f", seq=seq, t=0.0, frame_period=period, epoch=0.0, slots=slots
+        ).to_wire()
+
+    now = [100 * period + period / 2]  # the node's slot (second of two) starts now
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        driver = stack.enter_context(SimulatedDriver(network, ids[1]))
+        agent = NodeAgent(
+            session, driver, AgentConfig(node=ids[1], net=NET, publish_ir=False),
+            clock=lambda: now[0],
+        )  # fmt: skip
+        agent.start(threads=False)
+        stack.callback(agent.stop)
+        agent.catch_up = 0.01
+        agent._schedule_in.put(schedule([ids[0], ids[1]], 0))
+        first = agent.next_slot()
+        assert first is not None and first.frame == 100
+        agent.serve(first)
+        # a node sorted before it joins: its slot moves from 1/2 to 2/3 of the frame, still
+        # within the catch-up of now, but frame 100 was served
+        now[0] += 0.3 * period
+        agent._schedule_in.put(schedule([ids[0], ids[2], ids[1]], 1))
+        nxt = agent.next_slot()
+        assert nxt is not None and nxt.frame == 101

@@ -31,10 +31,10 @@ def _check(result, tmp_path):
         ("ospa_mean", float),
         ("nodes", int),
         ("people", int),
-        ("late_detections", int),
     ):
         assert isinstance(result[key], kind), (key, result[key])
     assert result["nodes"] == 12 and result["people"] == 2 and result["workers"] == 2
+    assert result["late_detections"] is None  # the cells assemble the frames, not the hub
     assert 0 < result["p50_latency_ms"] <= result["p99_latency_ms"] < 5000
     # A starved machine (load 10 on 2 cores: 18 % measured) loses acquisitions evenly over
     # the nodes; a broken pipeline loses them all.

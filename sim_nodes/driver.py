@@ -30,6 +30,7 @@ class SimulatedDriver(RadarDriver):
         self._info = infos[node]
         # the acquisition of the next slot, simulated ahead with others (acquire_ahead)
         self._ahead: Acquisition | None = None
+        self.simulated_alone = 0  # acquisitions not prepared with a batch (acquire_ahead)
         n_rx = sum(1 for a in self._info["antennas"].values() if a["rx"])
         super().__init__(n_rx=n_rx, n=int(self._info["radar"]["n"]))
 
@@ -67,5 +68,6 @@ class SimulatedDriver(RadarDriver):
         ahead, self._ahead = self._ahead, None
         if ahead is not None and ahead.t == slot.t:
             return ahead
+        self.simulated_alone += 1
         tx, rx, h = self.network.acquire(self.node, slot.t - self.start)
         return Acquisition(t=slot.t, tx=tx, rx=tuple(rx), h=h)

@@ -58,9 +58,10 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, b
         )
         stack.callback(sub.undeclare)
         session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
-        agents = []
+        agents, drivers = [], []
         for node in nodes:
             driver = stack.enter_context(SimulatedDriver(network, node, start=start))
+            drivers.append(driver)
             agents.append(
                 NodeAgent(session, driver, AgentConfig(node=node, net=NET, publish_ir=False))
             )
@@ -97,6 +98,11 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, b
     assert sum(complete) >= 20, complete  # a node never served: 0
     for agent in agents:
         assert agent.counters["dsp_errors"] == 0 and agent.counters["driver_errors"] == 0
+    # a batch's acquisitions are simulated together and each is taken by its own slot (a
+    # prepared one not taken would be simulated again, alone); one at a time, all alone
+    alone = sum(d.simulated_alone for d in drivers)
+    acquired = sum(a.counters["acquired"] for a in agents)
+    assert alone == (0 if batch_window else acquired), (alone, acquired)
     assert set(status) == set(nodes)
     assert all(s.acquired > 0 and 0.0 < s.cpu < 1.0 for s in status.values())
     # the lateness histogram counts every acquisition up to the status (the last status may
@@ -118,6 +124,9 @@ class _FakeDriver:
     @classmethod
     def acquire_ahead(cls, batch: list[tuple[_FakeDriver, SlotTiming]]) -> None:
         cls.batches.append([(d.name, slot.t) for d, slot in batch])
+        end = time.thread_time() + 0.001  # 1 ms of CPU, shared out over the batch's agents
+        while time.thread_time() < end:
+            pass
 
 
 class _FakeAgent:
@@ -233,7 +242,9 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
     assert _FakeDriver.batches == [
         [("a", a.served[f][0]), ("b", b.served[f][0]), ("c", c.served[f][0])] for f in range(2)
     ]
-    assert all(x.cpu >= 0.0 for x in (a, b, c))
+    # the preparation's CPU (1 ms per batch) shared out equally over each batch's agents
+    assert a.cpu == b.cpu == c.cpu
+    assert 3 * a.cpu >= 2 * 0.001
     with pytest.raises(ValueError, match="batch_window"):
         SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 

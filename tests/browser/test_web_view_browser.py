@@ -131,7 +131,10 @@ def test_page_reconnects_by_itself_after_the_server_restarts(tmp_path):
         with browser_page(tmp_path) as page:
             page.goto(server.url)
             page.wait_for_function("window.uwbnetView.updates > 5")
-            # 100 sensors and 30 tracks on the page.
+            # 100 sensors and 30 tracks on the page (the tables fill at the first draw).
+            page.wait_for_function(
+                "document.querySelectorAll('#nodes tbody tr').length > 0", timeout=5_000
+            )
             assert page.locator("#nodes tbody tr").count() == 100
             assert page.evaluate("window.uwbnetView.state.tracks.length") == 30
             server.stop()

@@ -117,7 +117,7 @@ function scheduleDraw() {
   if (!drawPending) { drawPending = true; requestAnimationFrame(draw); }
 }
 
-let lastTables = 0;
+let lastTables = -Infinity;  // the first draw fills the tables at once
 function draw() {
   drawPending = false;
   view.frames += 1;

@@ -51,8 +51,8 @@ from protocol.units import C
 from sim_nodes.channel.geometry import (
     Walls,
     mirror,
-    segment_intersection,
     wall_crossings,
+    wall_hits,
     wall_side,
 )
 from sim_nodes.channel.paths import Antennas, image_paths
@@ -266,10 +266,7 @@ class RangingSimulator:
             # a wall whose line separates the ends without blocking the link (it ends
             # beside it: a door jamb, a partition's end) scatters from its free vertical
             # edges; the shortest path via an edge, unfolded about it, bounds that energy
-            u, s = segment_intersection(p, a, walls.start, walls.end)
-            z = p[2] + u * (a[2] - p[2])
-            with np.errstate(invalid="ignore"):
-                crossed = (u > 0.0) & (u < 1.0) & (s >= 0.0) & (s <= 1.0) & (z <= walls.height)
+            crossed = wall_hits(p[None, :], a[None, :], walls)[0]
             beside = (side[0] * side[1] < 0.0) & ~crossed
             if beside.any():
                 edges = np.concatenate([walls.start[beside], walls.end[beside]])

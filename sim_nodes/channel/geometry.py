@@ -118,6 +118,26 @@ def segment_intersection(
     return u, s
 
 
+def wall_hits(p: np.ndarray, q: np.ndarray, walls: Walls) -> np.ndarray:
+    """Which walls each segment passes through: strictly between its ends (``0 < u < 1``),
+    within the wall (``0 <= s <= 1``) and below its top edge.
+
+    Parameters
+    ----------
+    p, q : ndarray, shape (L, 3)
+        Segment end points.
+    walls : Walls
+
+    Returns
+    -------
+    ndarray, bool, shape (L, W)
+    """
+    u, s = segment_intersection(p[:, None, :], q[:, None, :], walls.start, walls.end)
+    z = p[:, None, 2] + u * (q[:, None, 2] - p[:, None, 2])
+    with np.errstate(invalid="ignore"):
+        return (u > _EPS) & (u < 1 - _EPS) & (s >= 0) & (s <= 1) & (z <= walls.height)
+
+
 def wall_crossings(
     p: np.ndarray, q: np.ndarray, walls: Walls, exclude: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -145,10 +165,7 @@ def wall_crossings(
     """
     if walls.count == 0:
         return np.ones(p.shape[0]), np.zeros(p.shape[0])
-    u, s = segment_intersection(p[:, None, :], q[:, None, :], walls.start, walls.end)
-    z = p[:, None, 2] + u * (q[:, None, 2] - p[:, None, 2])
-    with np.errstate(invalid="ignore"):
-        hit = (u > _EPS) & (u < 1 - _EPS) & (s >= 0) & (s <= 1) & (z <= walls.height)
+    hit = wall_hits(p, q, walls)
     if exclude is not None:
         hit &= ~exclude
     trans = np.prod(np.where(hit, walls.transmission, 1.0), axis=-1)

@@ -266,7 +266,7 @@ class GaussianCfarDetector:
         :class:`~node_agent.dsp.background.ExponentialBackgroundSubtractor` whose
         background is ``background`` (:meth:`~ExponentialBackgroundSubtractor.state_for`)
         and forgetting factor ``alpha``
-        (:func:`node_agent.dsp.kernels.background_cfar_real`), at about 10 us less per
+        (:func:`node_agent.dsp.kernels.background_cfar_real`), at about 15-20 us less per
         impulse response (docs/capacity.md, eighth round).
 
         Parameters

@@ -507,11 +507,18 @@ def cfar_detect_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pr
     return _cfar_real(s, var, k2, floor, padded_ranges, rates, half, step)
 
 
-@_njit(
-    "Tuple((float64[:], float64[:], intp[:]))"
-    "(float32[:, :], float32[:, ::1], float32, float32[:, ::1], float32[:, ::1],"
-    " float32[:, ::1], float32[:, ::1], float64[::1], float32[::1], intp, float64)"
-)
+def _background_cfar_signatures() -> list:
+    """The signatures of :func:`background_cfar_real`: the impulse responses writable (a
+    driver's) or read-only (decoded from a recording), the state C-contiguous (so that the
+    loops vectorise)."""
+    t = numba.types
+    c2 = t.float32[:, ::1]
+    ret = t.Tuple((t.float64[:], t.float64[:], t.intp[:]))
+    rest = (t.float32, c2, c2, c2, c2, t.float64[::1], t.float32[::1], t.intp, t.float64)
+    return [ret(h, c2, *rest) for h in (t.float32[:, :], t.Array(t.float32, 2, "A", readonly=True))]
+
+
+@_njit(_background_cfar_signatures())
 def background_cfar_real(
     h, background, alpha, y, var, k2, floor, padded_ranges, rates, half, step
 ):  # pragma: no cover
@@ -527,7 +534,7 @@ def background_cfar_real(
     Parameters
     ----------
     h : ndarray, float32, shape (n_rx, m)
-        Impulse responses over the range window (any strides).
+        Impulse responses over the range window (any strides, writable or read-only).
     background : ndarray, float32, shape (n_rx, m)
         The background :math:`b_{k-1}`; updated in place to :math:`b_k`.
     alpha : float32

@@ -124,7 +124,8 @@ def test_background_cfar_kernel_matches_subtractor_and_detector_bit_for_bit():
     """The fused background subtraction + CFAR (``detect_subtracting``) against the numpy
     subtractor followed by ``detect`` on twin states: the same detections, subtracted
     frames, backgrounds and noise variances, bit for bit, over frames of a strided window
-    with moving echoes (and the first frames, where the fused call declines)."""
+    with moving echoes, writable or read-only (and the first frames, where the fused call
+    declines)."""
     from node_agent.dsp import ExponentialBackgroundSubtractor
 
     rng = np.random.default_rng(11)
@@ -139,6 +140,7 @@ def test_background_cfar_kernel_matches_subtractor_and_detector_bit_for_bit():
         frame = static + rng.standard_normal((2, 420)).astype(np.float32)
         frame[:, 60 + 3 * k] += np.float32(12.0)  # a walker
         frame[1, 300 - 2 * k : 302 - 2 * k] += np.float32(9.0)
+        frame.flags.writeable = k % 2 == 0  # odd frames read-only, as decoded from a file
         window = frame[:, 10:410]  # strided, as NodeDsp's range window
         state = bg_a.state_for(window)
         got = None if state is None else det_a.detect_subtracting(window, state, 0.05, y_a)

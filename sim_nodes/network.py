@@ -240,7 +240,7 @@ class SimNetwork:
         nid = next(iter(self._nodes))
         local = self._local[nid]
         if local is not None:
-            self._people_spectrum_fast(self._nodes[nid], local, np.ones(self.crowd.n_points), 0.0)
+            self._people_paths_fast(self._nodes[nid], local, np.ones(self.crowd.n_points), 0.0)
 
     def _local_view(self, node: _Node) -> _LocalView:
         """What of the building can matter to ``node``'s people echoes, found once.
@@ -377,11 +377,20 @@ class SimNetwork:
         -------
         ndarray, complex128, shape (n_rx, n_bins)
         """
+        paths = self._people_paths(node, t)
+        if isinstance(paths, tuple):
+            return self.radar.path_spectrum(*paths)
+        return paths
+
+    def _people_paths(self, node: str, t: float) -> tuple[np.ndarray, np.ndarray] | np.ndarray:
+        """What :meth:`people_spectrum` synthesises (advancing the fluctuation): the people's
+        paths ``(delays, amplitudes)``, shape (n_rx, P), for :meth:`MSequenceRadar.path_spectrum`
+        where the compiled kernel gives them, else the spectrum itself."""
         nd = self._nodes[node]
         local = self._local[node]
         amp_fluct = self._fluct[node].step(t)
         if local is not None:
-            return self._people_spectrum_fast(nd, local, amp_fluct, t)
+            return self._people_paths_fast(nd, local, amp_fluct, t)
         if local is None:
             body = self.crowd.scatterers(t)
             walls, antenna_side = self.walls, None
@@ -421,9 +430,9 @@ class SimNetwork:
         amps = amps * (BODY_REFLECTION_SIGN * amp_fluct[body.index])[None, :]
         return self.radar.path_spectrum(delays, amps)
 
-    def _people_spectrum_fast(
+    def _people_paths_fast(
         self, nd: _Node, local: _LocalView, amp_fluct: np.ndarray, t: float
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray] | np.ndarray:
         crowd, walls = self.crowd, local.walls
         n_rx = nd.rx.position.shape[0]
         delays = np.empty((n_rx, local.points.size))
@@ -458,7 +467,7 @@ class SimNetwork:
         )
         if count == 0:
             return np.zeros((n_rx, self.radar.n_bins), complex)
-        return self.radar.path_spectrum(delays[:, :count], amps[:, :count])
+        return delays[:, :count], amps[:, :count]
 
     def acquire(self, node: str, t: float) -> tuple[str, tuple[str, ...], npt.NDArray[np.float32]]:
         """One acquisition of ``node``'s own transmitter at its receivers.
@@ -514,9 +523,13 @@ class SimNetwork:
         if not requests:
             return []
         spec = np.empty((len(requests), n_rx.pop(), self.radar.n_bins), np.complex64)
-        for i, (node, t) in enumerate(requests):
+        people = [self._people_paths(node, t) for node, t in requests]
+        # the people's path spectra of the batch together (bit for bit one by one)
+        spectra = iter(self.radar.path_spectra([p for p in people if isinstance(p, tuple)]))
+        for i, node in enumerate(nodes):
+            p = people[i]
             # the same complex64 rounding as acquire's asarray
-            spec[i] = self._static[node] + self.people_spectrum(node, t)
+            spec[i] = self._static[node] + (next(spectra) if isinstance(p, tuple) else p)
         h = self.radar.impulse_responses(spec, [self._rng[node] for node in nodes])
         return [(f"{node}/tx", self._nodes[node].rx_names, h[i]) for i, node in enumerate(nodes)]
 

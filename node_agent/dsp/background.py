@@ -35,6 +35,16 @@ class ExponentialBackgroundSubtractor:
         """Forget the background; the next call re-initialises it."""
         self._background = None
 
+    def state_for(self, h: npt.NDArray) -> npt.NDArray | None:
+        """The background :math:`b_{k-1}` that :meth:`step` would subtract from ``h`` (the
+        array itself: a caller that subtracts and updates it in place, as
+        :meth:`~node_agent.dsp.cfar.GaussianCfarDetector.detect_subtracting` does, takes
+        over this step), or None when :meth:`step` would (re)initialise it instead."""
+        bg = self._background
+        if bg is None or bg.shape != h.shape or bg.dtype != h.dtype:
+            return None
+        return bg
+
     def step(self, h: npt.NDArray, out: npt.NDArray | None = None) -> npt.NDArray:
         """Subtract the background, then update it.
 

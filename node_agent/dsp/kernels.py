@@ -52,7 +52,8 @@ _SQRT_2PI = math.sqrt(2.0 * math.pi)
 def _njit(signature):
     """``numba.njit(signature, cache=True)``: compiled (or loaded from numba's cache) when
     this module is imported, for one signature of any-layout arrays, so a node pays no
-    compile during its first impulse responses. Without a writable cache directory
+    compile during its first impulse responses (``signature`` None: a helper compiled into
+    the kernels that call it). Without a writable cache directory
     (numba then refuses ``cache=True``), compiled in memory by every process instead."""
 
     def decorate(func):
@@ -383,56 +384,9 @@ def range_phd_step(x, transition, ranges, amplitudes, channels, par):  # pragma:
     return xp, est
 
 
-@_njit(
-    "Tuple((float64[:], float64[:], intp[:]))"
-    "(float32[:, :], float32[:, :], float32[:, :], float32[:, :], float64[:], float32[:],"
-    " intp, float64)"
-)
-def cfar_detect_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pragma: no cover
-    """One frame of the Gaussian adaptive-threshold (CFAR) detector on real samples.
-
-    The Neyman-Pearson test of Section 9.2 of the CoLOR chapter, per range bin ``k``,
-    :math:`y_k^2 > \\kappa_k \\sigma_k^2` with :math:`\\kappa_k = (\\sqrt{2}\\,
-    \\operatorname{erfc}^{-1}(P_{fa}))^2` (infinite where the bin is switched off), then the
-    exponential update of the noise variance with the squared sample clipped at
-    ``clip2`` times the variance,
-
-    .. math::
-
-        \\sigma_k^2 \\leftarrow \\max\\big(\\sigma_k^2 + \\alpha_k (\\min(y_k^2,
-        c\\, \\sigma_k^2) - \\sigma_k^2),\\ \\sigma_{floor}^2\\big)
-
-    at the slow rate :math:`\\alpha_k = \\alpha_{cross}` within ``half`` bins of a crossing,
-    :math:`\\alpha_{noise}` elsewhere. A crossing is a peak when its :math:`y_k^2` is the
-    first maximum within ``half`` bins; its range is refined by the parabola through the
-    envelope :math:`|y|` at the peak and its two neighbours. Arithmetic is float32 where
-    the numpy form of :class:`~node_agent.dsp.cfar.GaussianCfarDetector` is, in the same
-    order, so both give the same bits.
-
-    Parameters
-    ----------
-    s : ndarray, float32, shape (n_rx, m)
-        Background-subtracted samples of the range window.
-    var : ndarray, float32, shape (n_rx, m + 2 half)
-        Noise variance per padded bin; updated in place.
-    k2, floor : ndarray, float32, shape (n_rx, m + 2 half)
-        Squared threshold factor (inf: bin off) and variance floor per padded bin.
-    padded_ranges : ndarray, float64, shape (m + 2 half,)
-        Range of each padded bin, m.
-    rates : ndarray, float32, shape (3,)
-        ``(clip2, alpha_noise, alpha_cross)``.
-    half : int
-        Half the pulse width in bins (the padding on each side).
-    step : float
-        Range step between bins, m.
-
-    Returns
-    -------
-    ranges, amplitudes : ndarray, float64, shape (k,)
-        Detected ranges (m) and peak amplitudes :math:`|y_k|`, sorted by (row, range).
-    rows : ndarray, intp, shape (k,)
-        Row of ``s`` of each detection.
-    """
+@_njit(None)
+def _cfar_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pragma: no cover
+    """The body of :func:`cfar_detect_real` (inlined into the compiled kernels that call it)."""
     n_rx, m = s.shape
     width = m + 2 * half
     clip2, a_noise, a_cross = rates[0], rates[1], rates[2]
@@ -498,6 +452,109 @@ def cfar_detect_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pr
         for c in range(half, width - half):
             d2[c] = zero
     return out_r[:n_out].copy(), out_a[:n_out].copy(), out_c[:n_out].copy()
+
+
+@_njit(
+    "Tuple((float64[:], float64[:], intp[:]))"
+    "(float32[:, :], float32[:, :], float32[:, :], float32[:, :], float64[:], float32[:],"
+    " intp, float64)"
+)
+def cfar_detect_real(s, var, k2, floor, padded_ranges, rates, half, step):  # pragma: no cover
+    """One frame of the Gaussian adaptive-threshold (CFAR) detector on real samples.
+
+    The Neyman-Pearson test of Section 9.2 of the CoLOR chapter, per range bin ``k``,
+    :math:`y_k^2 > \\kappa_k \\sigma_k^2` with :math:`\\kappa_k = (\\sqrt{2}\\,
+    \\operatorname{erfc}^{-1}(P_{fa}))^2` (infinite where the bin is switched off), then the
+    exponential update of the noise variance with the squared sample clipped at
+    ``clip2`` times the variance,
+
+    .. math::
+
+        \\sigma_k^2 \\leftarrow \\max\\big(\\sigma_k^2 + \\alpha_k (\\min(y_k^2,
+        c\\, \\sigma_k^2) - \\sigma_k^2),\\ \\sigma_{floor}^2\\big)
+
+    at the slow rate :math:`\\alpha_k = \\alpha_{cross}` within ``half`` bins of a crossing,
+    :math:`\\alpha_{noise}` elsewhere. A crossing is a peak when its :math:`y_k^2` is the
+    first maximum within ``half`` bins; its range is refined by the parabola through the
+    envelope :math:`|y|` at the peak and its two neighbours. Arithmetic is float32 where
+    the numpy form of :class:`~node_agent.dsp.cfar.GaussianCfarDetector` is, in the same
+    order, so both give the same bits.
+
+    Parameters
+    ----------
+    s : ndarray, float32, shape (n_rx, m)
+        Background-subtracted samples of the range window.
+    var : ndarray, float32, shape (n_rx, m + 2 half)
+        Noise variance per padded bin; updated in place.
+    k2, floor : ndarray, float32, shape (n_rx, m + 2 half)
+        Squared threshold factor (inf: bin off) and variance floor per padded bin.
+    padded_ranges : ndarray, float64, shape (m + 2 half,)
+        Range of each padded bin, m.
+    rates : ndarray, float32, shape (3,)
+        ``(clip2, alpha_noise, alpha_cross)``.
+    half : int
+        Half the pulse width in bins (the padding on each side).
+    step : float
+        Range step between bins, m.
+
+    Returns
+    -------
+    ranges, amplitudes : ndarray, float64, shape (k,)
+        Detected ranges (m) and peak amplitudes :math:`|y_k|`, sorted by (row, range).
+    rows : ndarray, intp, shape (k,)
+        Row of ``s`` of each detection.
+    """
+    return _cfar_real(s, var, k2, floor, padded_ranges, rates, half, step)
+
+
+def _background_cfar_signatures() -> list:
+    """The signatures of :func:`background_cfar_real`: the impulse responses writable (a
+    driver's) or read-only (decoded from a recording), the state C-contiguous (so that the
+    loops vectorise)."""
+    t = numba.types
+    c2 = t.float32[:, ::1]
+    ret = t.Tuple((t.float64[:], t.float64[:], t.intp[:]))
+    rest = (t.float32, c2, c2, c2, c2, t.float64[::1], t.float32[::1], t.intp, t.float64)
+    return [ret(h, c2, *rest) for h in (t.float32[:, :], t.Array(t.float32, 2, "A", readonly=True))]
+
+
+@_njit(_background_cfar_signatures())
+def background_cfar_real(
+    h, background, alpha, y, var, k2, floor, padded_ranges, rates, half, step
+):  # pragma: no cover
+    """Background subtraction and CFAR detection of one frame of real samples, in one call.
+
+    The exponential background of Section 9.2 of the CoLOR chapter
+    (:class:`~node_agent.dsp.background.ExponentialBackgroundSubtractor`),
+    :math:`y_k = h_k - b_{k-1}`, :math:`b_k = b_{k-1} + \\alpha y_k`, in float32 and in
+    that order (the same bits as its numpy form), then :func:`cfar_detect_real` on
+    :math:`y`. One compiled call instead of the subtractor's numpy calls and a second
+    kernel call: a node runs it once per impulse response (docs/capacity.md, eighth round).
+
+    Parameters
+    ----------
+    h : ndarray, float32, shape (n_rx, m)
+        Impulse responses over the range window (any strides, writable or read-only).
+    background : ndarray, float32, shape (n_rx, m)
+        The background :math:`b_{k-1}`; updated in place to :math:`b_k`.
+    alpha : float32
+        Forgetting factor of the background.
+    y : ndarray, float32, shape (n_rx, m)
+        Receives :math:`y_k` (the background-subtracted frame).
+    var, k2, floor, padded_ranges, rates, half, step
+        As for :func:`cfar_detect_real`.
+
+    Returns
+    -------
+    As :func:`cfar_detect_real`.
+    """
+    n_rx, m = h.shape
+    for row in range(n_rx):
+        for i in range(m):
+            d = h[row, i] - background[row, i]
+            y[row, i] = d
+            background[row, i] += d * alpha
+    return _cfar_real(y, var, k2, floor, padded_ranges, rates, half, step)
 
 
 @_njit(

@@ -363,11 +363,23 @@ class NodeDsp:
         if self._y is None or self._y.shape != window.shape or self._y.dtype != window.dtype:
             self._y = np.empty(window.shape, dtype=window.dtype)
         # the subtracted frame lives only within this call: one buffer, no allocation
-        y = self._background.step(window, out=self._y)
-        if self._filter is not None:
-            y = self._filter.apply(y)
-        # estimate rows (rate variance, range, rate, amplitude, channel), sorted by channel
-        detections = self._cfar.detect(y)
+        detections = None
+        if self._filter is None and not is_complex:
+            # real samples, no band filter: background and CFAR in one compiled call, the
+            # same bits (None until both have their state: the first frames go below)
+            bg = self._background.state_for(window)
+            if bg is not None:
+                detections = self._cfar.detect_subtracting(
+                    window, bg, self._background.alpha, self._y
+                )
+        if detections is not None:
+            y = self._y
+        else:
+            y = self._background.step(window, out=self._y)
+            if self._filter is not None:
+                y = self._filter.apply(y)
+            # estimate rows (rate variance, range, rate, amplitude, channel), by channel
+            detections = self._cfar.detect(y)
         if self._integrator is not None:
             noise = self._cfar.noise_power()
             if noise is not None:

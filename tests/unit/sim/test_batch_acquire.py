@@ -38,6 +38,24 @@ def test_impulse_responses_equal_one_call_each() -> None:
         radar.impulse_responses(spectra, [rng] * 4)
 
 
+def test_path_spectra_equal_one_call_each() -> None:
+    """Paths of 1 to 40 echoes per acquisition (different counts side by side), 2 and 3
+    receivers: each spectrum bit for bit :meth:`path_spectrum` of its own paths."""
+    radar = MSequenceRadar(RadarConfig())
+    rng = np.random.default_rng(5)
+    for n_rx, counts in ((2, (1, 7, 40, 12)), (3, (5,)), (2, (3, 3, 3, 3, 3, 3, 3, 3))):
+        paths = [
+            (rng.uniform(5e-9, 80e-9, (n_rx, p)), rng.uniform(-0.2, 0.2, (n_rx, p))) for p in counts
+        ]
+        many = radar.path_spectra(paths)
+        assert len(many) == len(paths)
+        for (d, a), got in zip(paths, many, strict=True):
+            want = radar.path_spectrum(d, a)
+            assert got.shape == want.shape == (n_rx, radar.n_bins) and got.dtype == np.complex64
+            np.testing.assert_array_equal(got, want)
+    assert radar.path_spectra([]) == []
+
+
 def test_acquire_many_is_bit_for_bit_acquire_in_order(building) -> None:  # type: ignore[no-untyped-def]
     one = SimNetwork(building, 4, people_range=PEOPLE_RANGE)
     many = SimNetwork(building, 4, people_range=PEOPLE_RANGE)

@@ -994,18 +994,17 @@ class GmPhdTracker(Tracker):
                 count = np.bincount(flat, minlength=cols.size * nb).reshape(cols.size, nb)
                 rate = np.bincount(flat, weights=hit[seen], minlength=cols.size * nb)
                 rate = rate.reshape(cols.size, nb)
-                for c, i in enumerate(cols.tolist()):
-                    upd = count[c] > 0
-                    if not upd.any():
-                        continue
-                    profile = self.detection_profiles[scans[i].sensor]
-                    profile[upd] += cfg.adapt_rate * (rate[c, upd] / count[c, upd] - profile[upd])
-                    np.clip(
-                        profile,
-                        cfg.min_detection_probability,
-                        cfg.max_detection_probability,
-                        out=profile,
-                    )
+                # All sensors' profiles at once (``profiles`` holds them as they were): the
+                # bins with a count move towards their rate, then an updated profile is
+                # clipped as a whole. A loop over the sensors cost a third of the update.
+                upd = count > 0
+                moved = profiles.copy()
+                moved[upd] += cfg.adapt_rate * (rate[upd] / count[upd] - profiles[upd])
+                np.clip(
+                    moved, cfg.min_detection_probability, cfg.max_detection_probability, out=moved
+                )
+                for c in np.flatnonzero(upd.any(axis=1)).tolist():
+                    self.detection_profiles[scans[cols[c]].sensor][:] = moved[c]
         return pd_js
 
     def _sights(

@@ -83,6 +83,9 @@ class FusionCore:
         self.nodes: dict[str, NodeInfo] = {}
         self.counters = FusionCounters()
         self._pending: dict[int, list[SensorScan]] = defaultdict(list)
+        #: The sensors of each pending frame (checked against ``expected`` per detection).
+        self._reported: dict[int, set[str]] = defaultdict(set)
+        self._ranges: dict[str, float] = {}  # each node's max_range, m
         self._done_frame = -(2**62)
         self._last_t = -math.inf
         self._seen: dict[str, tuple[int, float]] = {}
@@ -96,6 +99,7 @@ class FusionCore:
         self.nodes[info.src] = info
         self._views = {k: v for k, v in self._views.items() if k[0] != info.src}
         self._blind.pop(info.src, None)
+        self._ranges.pop(info.src, None)
 
     def _view(self, det: Detections) -> tuple[np.ndarray, float, float]:
         """Array centre (world x, y), boresight and beamwidth of the sensor behind ``det``."""
@@ -112,9 +116,12 @@ class FusionCore:
         return view
 
     def _max_range(self, info: NodeInfo) -> float:
-        r = info.radar
-        window = C * (r.t0 + r.n / r.fs) / 2.0
-        return min(self.config.max_range, window)
+        max_range = self._ranges.get(info.src)
+        if max_range is None:
+            r = info.radar
+            window = C * (r.t0 + r.n / r.fs) / 2.0
+            max_range = self._ranges[info.src] = min(self.config.max_range, window)
+        return max_range
 
     def _min_range(self, info: NodeInfo) -> float:
         if not self.config.blind_zone:
@@ -182,8 +189,9 @@ class FusionCore:
                 min_range=self._min_range(self.nodes[det.src]),
             )
         )
-        frame = self._pending[det.frame]
-        if self.expected and self.expected <= {scan.sensor for scan in frame}:
+        reported = self._reported[det.frame]
+        reported.add(det.src)
+        if self.expected and self.expected <= reported:
             return self._emit(det.frame)
         return self._emit(det.frame - self.config.frame_lag)
 
@@ -197,6 +205,7 @@ class FusionCore:
         out = []
         for frame in sorted(f for f in self._pending if f <= upto):
             scans = sorted(self._pending.pop(frame), key=lambda s: s.t)
+            self._reported.pop(frame, None)
             t = max(scans[-1].t, self._last_t)
             step = self.tracker.step(t, scans)
             out.append(dataclasses.replace(step, acquired=tuple(s.t for s in scans)))

@@ -487,8 +487,21 @@ def fuse_estimates(
         # tracks one-to-one (minimum total distance), so two people who pass close to each
         # other keep one measurement each whenever a sensor resolves them.
         cost = np.where(d2 < gate, d2, 1e6)
-        for s in np.unique(owner):
-            cols = np.flatnonzero(owner == s)
+        gated = (d2 < gate).any(axis=0)
+        # each sensor's estimates, in index order (a stable sort keeps it within a sensor)
+        order = np.argsort(owner, kind="stable")
+        _, first, count = np.unique(owner[order], return_index=True, return_counts=True)
+        for i, k in zip(first.tolist(), count.tolist(), strict=True):
+            cols = order[i : i + k]
+            if not gated[cols].any():
+                continue  # nothing in any gate: the assignment would keep nothing
+            if k == 1:
+                # one estimate: the assignment is the nearest track
+                col = int(cols[0])
+                row = int(np.argmin(cost[:, col]))
+                if cost[row, col] < gate:
+                    labels[col] = row
+                continue
             rows, picked = linear_sum_assignment(cost[:, cols])
             ok = cost[rows, cols[picked]] < gate
             labels[cols[picked[ok]]] = rows[ok]

@@ -32,6 +32,13 @@ class FusionCoreConfig:
     Parameters
     ----------
     frame_lag : a frame is processed when a detection of frame ``f + frame_lag`` arrives.
+    frame_wait : up to this many frames more, an incomplete frame waits for an expected sensor
+        whose detection of it may still be in flight: one that reported one of the
+        ``frame_lag + frame_wait`` frames before it and no frame after it (a node's messages
+        arrive in order, so one that reported a later frame skipped this one). Later frames
+        wait with it (the tracker never goes back in time). 0: off, as before. For a node
+        process that got its core late and publishes its batch after the frame's deadline
+        (docs/capacity.md, "Eighth round, hub side").
     max_range : the distance (m) from a sensor up to which it is expected to detect a person;
         capped by the radar's window (half its longest bistatic range). 20 m (was 15): in a
         20 m hall a person near one end is seen only by the sensors at the other, 15-18 m
@@ -55,6 +62,7 @@ class FusionCoreConfig:
     """
 
     frame_lag: int = 2
+    frame_wait: int = 0
     max_range: float = 20.0
     view_margin: float = 0.35
     window_guard: float = WINDOW_GUARD
@@ -86,6 +94,7 @@ class FusionCore:
         #: The sensors of each pending frame (checked against ``expected`` per detection).
         self._reported: dict[int, set[str]] = defaultdict(set)
         self._ranges: dict[str, float] = {}  # each node's max_range, m
+        self._last_frame: dict[str, int] = {}  # the latest frame each sensor reported
         self._done_frame = -(2**62)
         self._last_t = -math.inf
         self._seen: dict[str, tuple[int, float]] = {}
@@ -165,6 +174,8 @@ class FusionCore:
             log.warning("detections of %s rejected: %s", det.src, exc)
             return []
         self.counters.detections += 1
+        if det.frame > self._last_frame.get(det.src, -(2**62)):
+            self._last_frame[det.src] = det.frame
         positions = det.positions if det.positions is not None else np.zeros((0, 2))
         cov = det.cov
         if cov is None:
@@ -193,7 +204,24 @@ class FusionCore:
         reported.add(det.src)
         if self.expected and self.expected <= reported:
             return self._emit(det.frame)
-        return self._emit(det.frame - self.config.frame_lag)
+        return self._emit(self._due(det.frame))
+
+    def _due(self, newest: int) -> int:
+        """The last frame to process now that a detection of frame ``newest`` arrived:
+        ``newest - frame_lag``, or the frame before the first pending one that waits for a
+        sensor in flight (``frame_wait``)."""
+        lag, wait = self.config.frame_lag, self.config.frame_wait
+        upto = newest - lag
+        if not wait or not self.expected:
+            return upto
+        for frame in sorted(f for f in self._pending if newest - lag - wait < f <= upto):
+            recent = frame - lag - wait
+            if any(
+                recent <= self._last_frame.get(src, -(2**62)) < frame
+                for src in self.expected - self._reported[frame]
+            ):
+                return frame - 1
+        return upto
 
     def flush(self) -> list[TrackerOutput]:
         """Process every pending frame (end of a recording, or a quiet network)."""

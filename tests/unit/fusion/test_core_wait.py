@@ -3,6 +3,8 @@ detection may still be in flight, and not for one that skipped the frame or went
 
 from __future__ import annotations
 
+import functools
+
 import msgpack
 import pytest
 
@@ -28,12 +30,21 @@ class FrameRecorder:
         pass
 
 
+@functools.cache
+def _infos() -> tuple[NodeInfo, ...]:
+    return tuple(
+        NodeInfo.from_wire(
+            msgpack.packb({"v": 1, "kind": "node_info", "src": nid, "seq": 0, "t": 0.0, **info})
+        )
+        for nid, info in SimNetwork("foyer3", seed=1).node_infos().items()
+    )
+
+
 def _core(wait: int) -> tuple[FusionCore, FrameRecorder]:
     rec = FrameRecorder()
     core = FusionCore(rec, FusionCoreConfig(frame_lag=2, frame_wait=wait))  # type: ignore[arg-type]
-    for nid, info in SimNetwork("foyer3", seed=1).node_infos().items():
-        wire = {"v": 1, "kind": "node_info", "src": nid, "seq": 0, "t": 0.0, **info}
-        core.add_node(NodeInfo.from_wire(msgpack.packb(wire)))
+    for info in _infos():
+        core.add_node(info)
     core.expected = frozenset({"bat1", "bat2"})
     return core, rec
 

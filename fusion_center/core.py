@@ -32,6 +32,13 @@ class FusionCoreConfig:
     Parameters
     ----------
     frame_lag : a frame is processed when a detection of frame ``f + frame_lag`` arrives.
+    frame_wait : up to this many frames more, an incomplete frame waits for an expected sensor
+        whose detection of it may still be in flight: one that reported one of the
+        ``frame_lag + frame_wait`` frames before it and no frame after it (a node's messages
+        arrive in order, so one that reported a later frame skipped this one). Later frames
+        wait with it (the tracker never goes back in time). 0: off, as before. For a node
+        process that got its core late and publishes its batch after the frame's deadline
+        (docs/capacity.md, "Eighth round, hub side").
     max_range : the distance (m) from a sensor up to which it is expected to detect a person;
         capped by the radar's window (half its longest bistatic range). 20 m (was 15): in a
         20 m hall a person near one end is seen only by the sensors at the other, 15-18 m
@@ -55,6 +62,7 @@ class FusionCoreConfig:
     """
 
     frame_lag: int = 2
+    frame_wait: int = 0
     max_range: float = 20.0
     view_margin: float = 0.35
     window_guard: float = WINDOW_GUARD
@@ -83,6 +91,10 @@ class FusionCore:
         self.nodes: dict[str, NodeInfo] = {}
         self.counters = FusionCounters()
         self._pending: dict[int, list[SensorScan]] = defaultdict(list)
+        #: The sensors of each pending frame (checked against ``expected`` per detection).
+        self._reported: dict[int, set[str]] = defaultdict(set)
+        self._ranges: dict[str, float] = {}  # each node's max_range, m
+        self._last_frame: dict[str, int] = {}  # the latest frame each sensor reported
         self._done_frame = -(2**62)
         self._last_t = -math.inf
         self._seen: dict[str, tuple[int, float]] = {}
@@ -96,6 +108,7 @@ class FusionCore:
         self.nodes[info.src] = info
         self._views = {k: v for k, v in self._views.items() if k[0] != info.src}
         self._blind.pop(info.src, None)
+        self._ranges.pop(info.src, None)
 
     def _view(self, det: Detections) -> tuple[np.ndarray, float, float]:
         """Array centre (world x, y), boresight and beamwidth of the sensor behind ``det``."""
@@ -112,9 +125,12 @@ class FusionCore:
         return view
 
     def _max_range(self, info: NodeInfo) -> float:
-        r = info.radar
-        window = C * (r.t0 + r.n / r.fs) / 2.0
-        return min(self.config.max_range, window)
+        max_range = self._ranges.get(info.src)
+        if max_range is None:
+            r = info.radar
+            window = C * (r.t0 + r.n / r.fs) / 2.0
+            max_range = self._ranges[info.src] = min(self.config.max_range, window)
+        return max_range
 
     def _min_range(self, info: NodeInfo) -> float:
         if not self.config.blind_zone:
@@ -158,6 +174,8 @@ class FusionCore:
             log.warning("detections of %s rejected: %s", det.src, exc)
             return []
         self.counters.detections += 1
+        if det.frame > self._last_frame.get(det.src, -(2**62)):
+            self._last_frame[det.src] = det.frame
         positions = det.positions if det.positions is not None else np.zeros((0, 2))
         cov = det.cov
         if cov is None:
@@ -182,10 +200,28 @@ class FusionCore:
                 min_range=self._min_range(self.nodes[det.src]),
             )
         )
-        frame = self._pending[det.frame]
-        if self.expected and self.expected <= {scan.sensor for scan in frame}:
+        reported = self._reported[det.frame]
+        reported.add(det.src)
+        if self.expected and self.expected <= reported:
             return self._emit(det.frame)
-        return self._emit(det.frame - self.config.frame_lag)
+        return self._emit(self._due(det.frame))
+
+    def _due(self, newest: int) -> int:
+        """The last frame to process now that a detection of frame ``newest`` arrived:
+        ``newest - frame_lag``, or the frame before the first pending one that waits for a
+        sensor in flight (``frame_wait``)."""
+        lag, wait = self.config.frame_lag, self.config.frame_wait
+        upto = newest - lag
+        if not wait or not self.expected:
+            return upto
+        for frame in sorted(f for f in self._pending if newest - lag - wait < f <= upto):
+            recent = frame - lag - wait
+            if any(
+                recent <= self._last_frame.get(src, -(2**62)) < frame
+                for src in self.expected - self._reported[frame]
+            ):
+                return frame - 1
+        return upto
 
     def flush(self) -> list[TrackerOutput]:
         """Process every pending frame (end of a recording, or a quiet network)."""
@@ -197,6 +233,7 @@ class FusionCore:
         out = []
         for frame in sorted(f for f in self._pending if f <= upto):
             scans = sorted(self._pending.pop(frame), key=lambda s: s.t)
+            self._reported.pop(frame, None)
             t = max(scans[-1].t, self._last_t)
             step = self.tracker.step(t, scans)
             out.append(dataclasses.replace(step, acquired=tuple(s.t for s in scans)))

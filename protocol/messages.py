@@ -9,6 +9,7 @@ message decoded and re-encoded keeps its bytes when its keys came in our order.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from typing import Any, ClassVar, Self
 
@@ -394,6 +395,10 @@ def decode(payload: bytes | bytearray | memoryview) -> Message:
     cls = KINDS.get(kind)
     if cls is None:
         raise DecodeError(f"unknown kind {kind!r}")
+    if cls is Detections:
+        fast = _detections_fast(m)
+        if fast is not None:
+            return fast
     body = {k: val for k, val in m.items() if k not in ("v", "kind")}
     try:
         return decode_fields(cls, body)
@@ -401,3 +406,91 @@ def decode(payload: bytes | bytearray | memoryview) -> Message:
         raise
     except (TypeError, ValueError, IndexError) as exc:  # defensive: never leak other types
         raise DecodeError(f"{kind}: {exc}".splitlines()[0]) from None
+
+
+#: The keys a ``detections`` map may carry that are not kept in ``extra``.
+_DETECTIONS_KEYS = frozenset(
+    ("v", "kind", "src", "seq", "t", "tx", "frame", "ranges", "amplitudes", "positions", "cov")
+)
+
+
+def _float_lists(value: Any) -> dict[str, tuple[float, ...]] | None:
+    """``ranges`` / ``amplitudes`` of a well-formed message (str keys, lists of finite
+    floats), or None for anything else."""
+    if type(value) is not dict:
+        return None
+    out = {}
+    for k, v in value.items():
+        if type(k) is not str or type(v) is not list:
+            return None
+        if not (all(type(x) is float for x in v) and all(map(math.isfinite, v))):
+            return None
+        out[k] = tuple(v)
+    return out
+
+
+def _read_only_empty(shape: tuple[int, ...]) -> npt.NDArray[np.float64]:
+    a = np.zeros(shape)
+    a.flags.writeable = False
+    return a
+
+
+#: Shared empty ``positions`` and ``cov`` (read-only, as every decoded array is).
+_EMPTY_F8 = {(0, 2): _read_only_empty((0, 2)), (0, 2, 2): _read_only_empty((0, 2, 2))}
+
+
+def _f8_array(obj: Any, ndim: int) -> npt.NDArray[np.float64] | None:
+    """A well-formed ``<f8`` wire array of ``ndim`` dimensions, or None for anything else."""
+    if type(obj) is not dict or len(obj) != 3 or obj.get("dtype") != "<f8":
+        return None
+    shape, data = obj.get("shape"), obj.get("data")
+    if type(shape) is not list or len(shape) != ndim or type(data) is not bytes:
+        return None
+    if not all(type(s) is int and s >= 0 for s in shape):
+        return None
+    size = math.prod(shape)
+    if len(data) != 8 * size:
+        return None
+    if not size and (empty := _EMPTY_F8.get(tuple(shape))) is not None:
+        return empty  # most messages: no position estimate
+    arr = np.frombuffer(data, dtype=np.float64).reshape(shape)
+    if arr.size and not np.isfinite(arr).all():
+        return None
+    return arr
+
+
+def _detections_fast(m: dict[str, Any]) -> Detections | None:
+    """Decode the usual, well-formed ``detections`` map (the fusion center gets one per node per
+    frame) without the generic per-field walk of :func:`~protocol.schema.decode_fields`.
+
+    Every check of PROTOCOL.md is applied, but in the narrow form every node writes (floats
+    that are Python floats, no ``links``, arrays with exactly their three keys); anything else
+    returns None and goes the generic way, which accepts the other valid forms and raises the
+    precise error. So this path only ever decodes what the generic one decodes, to an equal
+    message (tests/unit/protocol/test_protocol_fast_decode.py)."""
+    src, seq, t, tx, frame = m.get("src"), m.get("seq"), m.get("t"), m.get("tx"), m.get("frame")
+    if not (type(src) is str and type(tx) is str and type(seq) is int and type(frame) is int):
+        return None
+    if seq < 0 or type(t) is not float or not math.isfinite(t) or "links" in m:
+        return None
+    ranges, amplitudes = _float_lists(m.get("ranges")), _float_lists(m.get("amplitudes"))
+    if ranges is None or amplitudes is None:
+        return None
+    positions = cov = None
+    if (p := m.get("positions")) is not None and (positions := _f8_array(p, 2)) is None:
+        return None
+    if (c := m.get("cov")) is not None and (cov := _f8_array(c, 3)) is None:
+        return None
+    extra = {k: v for k, v in m.items() if k not in _DETECTIONS_KEYS}
+    return Detections(
+        src=src,
+        seq=seq,
+        t=t,
+        tx=tx,
+        frame=frame,
+        ranges=ranges,
+        amplitudes=amplitudes,
+        positions=positions,
+        cov=cov,
+        extra=extra,
+    )

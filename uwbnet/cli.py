@@ -370,6 +370,7 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 spread_slots=args.spread_slots,
                 rt_priority=args.rt_priority,
                 frame_lag=args.frame_lag,
+                frame_wait=args.frame_wait,
                 catch_up=args.catch_up,
                 seed=args.seed,
                 out=args.out,
@@ -961,6 +962,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=2,
         help="the fusion center fuses a frame once a detection of the frame this many frames "
         "later arrives (default 2)",
+    )
+    sc.add_argument(
+        "--frame-wait",
+        type=int,
+        default=0,
+        metavar="W",
+        help="an incomplete frame waits up to W frames more for a node whose detection may "
+        "still be in flight (default 0: off)",
     )
     sc.add_argument(
         "--catch-up",

@@ -76,6 +76,9 @@ class ScaleConfig:
     # arrives (FusionCoreConfig.frame_lag); the last node process of a frame then has only
     # about frame_lag - 1 frames of slack (docs/capacity.md, seventh round)
     frame_lag: int = 2
+    # an incomplete frame waits up to this many frames more for a node whose detection may
+    # still be in flight (FusionCoreConfig.frame_wait); 0: off
+    frame_wait: int = 0
     # --threads batch: a node process still serves a slot whose start passed less than this
     # (s) ago (SlotOrderGroup catch_up); 0: skipped, as before
     catch_up: float = 0.0
@@ -270,6 +273,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError("--catch-up needs --threads batch")
     if cfg.frame_lag < 1:
         raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
+    if cfg.frame_wait < 0:
+        raise ScaleError(f"--frame-wait must be >= 0, not {cfg.frame_wait}")
     if not 0 <= cfg.rt_priority <= 99:
         raise ScaleError("--rt-priority must be 0 (off) to 99")
     if cfg.rt_priority and os.geteuid() != 0:
@@ -294,6 +299,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "workers": cfg.workers,
         "rt_priority": cfg.rt_priority,
         "frame_lag": cfg.frame_lag,
+        "frame_wait": cfg.frame_wait,
         "catch_up": cfg.catch_up,
     }
     procs: list[_Proc] = []

@@ -75,10 +75,10 @@ def _see_walls(fusion: Any, cfg: dict[str, Any]) -> None:
 
 
 def _core(cfg: dict[str, Any]) -> Any:
-    """The fusion core's frame assembly, with the run's ``frame_lag``."""
+    """The fusion core's frame assembly, with the run's ``frame_lag`` and ``frame_wait``."""
     from fusion_center.core import FusionCoreConfig
 
-    return FusionCoreConfig(frame_lag=cfg.get("frame_lag", 2))
+    return FusionCoreConfig(frame_lag=cfg.get("frame_lag", 2), frame_wait=cfg.get("frame_wait", 0))
 
 
 def _session(cfg: dict[str, Any], *, router: bool = False) -> zenoh.Session:

@@ -487,8 +487,21 @@ def fuse_estimates(
         # tracks one-to-one (minimum total distance), so two people who pass close to each
         # other keep one measurement each whenever a sensor resolves them.
         cost = np.where(d2 < gate, d2, 1e6)
-        for s in np.unique(owner):
-            cols = np.flatnonzero(owner == s)
+        gated = (d2 < gate).any(axis=0)
+        # each sensor's estimates, in index order (a stable sort keeps it within a sensor)
+        order = np.argsort(owner, kind="stable")
+        _, first, count = np.unique(owner[order], return_index=True, return_counts=True)
+        for i, k in zip(first.tolist(), count.tolist(), strict=True):
+            cols = order[i : i + k]
+            if not gated[cols].any():
+                continue  # nothing in any gate: the assignment would keep nothing
+            if k == 1:
+                # one estimate: the assignment is the nearest track
+                col = int(cols[0])
+                row = int(np.argmin(cost[:, col]))
+                if cost[row, col] < gate:
+                    labels[col] = row
+                continue
             rows, picked = linear_sum_assignment(cost[:, cols])
             ok = cost[rows, cols[picked]] < gate
             labels[cols[picked[ok]]] = rows[ok]
@@ -994,18 +1007,17 @@ class GmPhdTracker(Tracker):
                 count = np.bincount(flat, minlength=cols.size * nb).reshape(cols.size, nb)
                 rate = np.bincount(flat, weights=hit[seen], minlength=cols.size * nb)
                 rate = rate.reshape(cols.size, nb)
-                for c, i in enumerate(cols.tolist()):
-                    upd = count[c] > 0
-                    if not upd.any():
-                        continue
-                    profile = self.detection_profiles[scans[i].sensor]
-                    profile[upd] += cfg.adapt_rate * (rate[c, upd] / count[c, upd] - profile[upd])
-                    np.clip(
-                        profile,
-                        cfg.min_detection_probability,
-                        cfg.max_detection_probability,
-                        out=profile,
-                    )
+                # All sensors' profiles at once (``profiles`` holds them as they were): the
+                # bins with a count move towards their rate, then an updated profile is
+                # clipped as a whole. A loop over the sensors cost a third of the update.
+                upd = count > 0
+                moved = profiles.copy()
+                moved[upd] += cfg.adapt_rate * (rate[upd] / count[upd] - profiles[upd])
+                np.clip(
+                    moved, cfg.min_detection_probability, cfg.max_detection_probability, out=moved
+                )
+                for c in np.flatnonzero(upd.any(axis=1)).tolist():
+                    self.detection_profiles[scans[cols[c]].sensor][:] = moved[c]
         return pd_js
 
     def _sights(

@@ -106,17 +106,21 @@ def _solve_weighted(
     if not np.all(np.isfinite(normal)):
         return None
     g = design.T @ (weight * rhs)
-    d = np.ones(normal.shape[0])
-    if equilibrate:
-        diag = np.diag(normal)
-        if np.any(diag <= 0.0):
+    if not equilibrate:
+        if _condition(normal) > 1e12:
             return None
-        d = 1.0 / np.sqrt(diag)
-        normal = normal * np.outer(d, d)
-    if _condition(normal) > 1e12:
+        x = np.linalg.solve(normal, g)
+        cov = np.linalg.solve(normal, np.eye(normal.shape[0]))
+        return x, 0.5 * (cov + cov.T)
+    diag = np.diag(normal)
+    if np.any(diag <= 0.0):
         return None
-    x = d * np.linalg.solve(normal, d * g)
-    cov = np.outer(d, d) * np.linalg.solve(normal, np.eye(normal.shape[0]))
+    d = 1.0 / np.sqrt(diag)
+    dd = np.outer(d, d)
+    if _condition(normal * dd) > 1e12:
+        return None
+    x = d * np.linalg.solve(normal * dd, d * g)
+    cov = dd * np.linalg.solve(normal * dd, np.eye(normal.shape[0]))
     return x, 0.5 * (cov + cov.T)
 
 

@@ -234,11 +234,7 @@ class TaylorSeriesLocator(Locator):
             return first
         # from the prior and from the linear fix: a prior on the wrong side of a line of
         # anchors would otherwise keep the mirror branch; the lower weighted cost wins
-        best = None
-        for x0 in starts:
-            res = self._iterate(a, r, s, x0)
-            if res is not None and (best is None or res[2] < best[2]):
-                best = res
+        best = self.best_of(a, r, s, starts)
         if best is None:
             return failed_fix("Gauss-Newton diverged")
         x, cov, _ = best
@@ -246,6 +242,18 @@ class TaylorSeriesLocator(Locator):
         # with fewer than 3 anchors or collinear ones, a prior chose the branch: the covariance
         # is the local one, and the fix is flagged so that only a tracker with that prior uses it
         return PositionFix(position=x, cov=cov, ok=not problem, reason=problem, residual_rms=rms)
+
+    def best_of(
+        self, a: FloatArray, r: FloatArray, s: FloatArray, starts: list[FloatArray]
+    ) -> tuple[FloatArray, FloatArray, float] | None:
+        """Gauss-Newton from each start: the ``(x, cov, weighted cost)`` of lowest cost, or
+        None when every run was singular."""
+        best = None
+        for x0 in starts:
+            res = self._iterate(a, r, s, x0)
+            if res is not None and (best is None or res[2] < best[2]):
+                best = res
+        return best
 
     def from_start(
         self, anchors: FloatArray, ranges: FloatArray, std: FloatArray, start: FloatArray
@@ -344,11 +352,7 @@ class ApproximateMlLocator(Locator):
         starts = [x0]
         if initial is not None and np.all(np.isfinite(initial)):
             starts.append(np.asarray(initial, float))
-        best = None
-        for start in starts:
-            res = self._polish.from_start(a, r, s, start)
-            if res is not None and (best is None or res[2] < best[2]):
-                best = res
+        best = self._polish.best_of(a, r, s, starts)
         if best is None:
             return failed_fix("Gauss-Newton diverged")
         x, cov, _ = best

@@ -139,3 +139,17 @@ def test_clipped_mse_ignores_one_outlier_the_plain_one_does_not(rng):
     r[12] += 0.3  # one multipath outlier of a LOS link: 10 sigma
     assert MseNlosTest(los_std=0.03).is_nlos(t, r)
     assert not MseNlosTest(los_std=0.03, clip=3.0).is_nlos(t, r)
+
+
+def test_equilibrated_weighted_solve_is_the_plain_one():
+    from fusion_center.localization.estimators import _solve_weighted
+
+    rng = np.random.default_rng(3)
+    design = np.column_stack([rng.normal(size=(6, 2)) * [10.0, 0.01], np.ones(6)])
+    rhs, w = rng.normal(size=6), rng.uniform(0.1, 10.0, 6)
+    x0, c0 = _solve_weighted(design, rhs, w)
+    x1, c1 = _solve_weighted(design, rhs, w, equilibrate=True)
+    np.testing.assert_allclose(x1, x0, rtol=1e-9)
+    np.testing.assert_allclose(c1, c0, rtol=1e-9)
+    # a rank-deficient design stays singular after scaling
+    assert _solve_weighted(np.ones((4, 2)), rhs[:4], w[:4], equilibrate=True) is None

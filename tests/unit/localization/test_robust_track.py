@@ -143,3 +143,40 @@ def test_pose_json_keeps_sub_millimetre_covariances():
     rec = pose_json("tag", PoseResult(t=0.1, pose=(1.0, 2.0, 1.0, 0.0), cov=cov, los={}, fix=fix))
     np.testing.assert_allclose(np.array(rec["cov"]), cov, rtol=1e-5)
     np.testing.assert_allclose(np.array(rec["fix_cov"]), fix.cov, rtol=1e-5)
+
+
+@pytest.mark.parametrize("method", ["lls", "aml"])
+def test_closed_form_fixes_are_tracked_at_the_noise_core(method):
+    # LS and approximate ML used to enter the track with a 3 cm range floor: a covariance
+    # 100 times too large that made the track lag the fixes (here 5.9 and 2.9 mm against
+    # snapshot fixes of 0.9 and 0.5 mm); now their LOS ranges enter with their own std
+    # (approximate ML on the robust track, which averages below the snapshot)
+    loc = RangingLocalizer(ANCHORS, height=1.0, config=LocalizerConfig(method=method))
+    err, fix_err = [], []
+    for t, xy, links in _rounds(np.random.default_rng(5), tail=0.0):
+        res = loc.step(t, links)
+        err.append(np.subtract(res.pose[:2], xy))
+        fix_err.append(res.fix.position - xy)
+    rms = lambda e: float(np.sqrt(np.mean(np.sum(np.square(e[20:]), axis=1))))  # noqa: E731
+    assert rms(err) < 1.1 * rms(fix_err)
+    assert rms(err) < (1.2e-3 if method == "lls" else 0.6e-3)
+
+
+def test_approximate_ml_with_two_los_anchors_is_the_ml_fix():
+    from fusion_center.localization.estimators import ApproximateMlLocator, TaylorSeriesLocator
+
+    # lab_nlos: two LOS anchors at 0.3 mm, two NLOS ones de-weighted to 1.5 m (and 0.3 m
+    # long): the weights are 10^7 apart, and step 1 of Chan-Ho was judged singular; a single
+    # Gauss-Newton step from the two-step solution left centimetres
+    rng = np.random.default_rng(8)
+    anchors = np.array([a[:2] for a in ANCHORS.values()])
+    std = np.array([3e-4, 3e-4, 1.5, 1.5])
+    for _ in range(20):
+        xy = rng.uniform([1.0, 1.0], [4.0, 4.0])
+        r = np.linalg.norm(anchors - xy, axis=1) + rng.normal(0.0, 3e-4, 4)
+        r[2:] += 0.3
+        fix = ApproximateMlLocator().locate(anchors, r, std)
+        ml = TaylorSeriesLocator().locate(anchors, r, std, initial=xy)
+        assert fix.ok, fix.reason
+        np.testing.assert_allclose(fix.position, ml.position, atol=1e-6)
+        assert float(np.linalg.norm(fix.position - xy)) < 3e-3

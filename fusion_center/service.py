@@ -117,6 +117,8 @@ class FusionService:
         self.health: dict[str, NodeHealth] = {}
         self.latest: TrackerOutput | None = None
         self.decode_errors = 0
+        #: messages whose handling raised something other than a protocol error (logged)
+        self.handler_errors = 0
         self.rejected_poses = 0
         self._schedule: TdmaSchedule | None = None
         self._schedule_bytes = b""
@@ -285,6 +287,9 @@ class FusionService:
             except ProtocolError as exc:
                 self.decode_errors += 1
                 log.warning("rejected %s: %s", key, exc)
+            except Exception:  # a bug must cost one message, not the fusion thread
+                self.handler_errors += 1
+                log.exception("failed on %s", key)
             self._fetch_infos()
 
     def _handle(self, leaf: str, key: str, payload: bytes) -> None:

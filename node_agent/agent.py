@@ -329,6 +329,10 @@ class NodeAgent:
             self.counters["dsp_errors"] += 1
             log.warning("node %s: processing failed: %s", self.config.node, exc)
             return
+        except Exception:  # a DSP bug must cost one acquisition, not the node
+            self.counters["dsp_errors"] += 1
+            log.exception("node %s: processing failed unexpectedly", self.config.node)
+            return
         det = detections_message(ir, result, src=self.config.node, seq=self._next("det"))
         self._outbox.put((self._pub_det, det.to_wire()))
 

@@ -395,12 +395,12 @@ def decode(payload: bytes | bytearray | memoryview) -> Message:
     cls = KINDS.get(kind)
     if cls is None:
         raise DecodeError(f"unknown kind {kind!r}")
-    if cls is Detections:
-        fast = _detections_fast(m)
-        if fast is not None:
-            return fast
-    body = {k: val for k, val in m.items() if k not in ("v", "kind")}
     try:
+        if cls is Detections:
+            fast = _detections_fast(m)
+            if fast is not None:
+                return fast
+        body = {k: val for k, val in m.items() if k not in ("v", "kind")}
         return decode_fields(cls, body)
     except ProtocolError:
         raise

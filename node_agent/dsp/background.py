@@ -64,7 +64,7 @@ class ExponentialBackgroundSubtractor:
         """
         bg = self._background
         if bg is None or bg.shape != h.shape or bg.dtype != h.dtype:
-            self._background = np.array(h, copy=True)
+            self._background = np.array(h, copy=True, order="C")
             self._scaled = np.empty_like(self._background)
             if out is None:
                 return np.zeros_like(h)

@@ -293,6 +293,14 @@ class GaussianCfarDetector:
             self._k2 = np.repeat(self._k2, n_rx, axis=0)
         if self._var.shape[0] != n_rx or background.shape != h.shape or out.shape != h.shape:
             return None
+        # the compiled signatures take C-ordered background and output (a driver may hand
+        # over a transposed or broadcast frame: that layout must fall back, not raise)
+        if not (background.flags.c_contiguous and out.flags.c_contiguous):
+            return None
+        if h.flags.f_contiguous and not h.flags.c_contiguous:
+            # numba finds a Fortran-ordered frame ambiguous between the writable and the
+            # read-only signature; a row-major copy is rare and exact
+            h = np.ascontiguousarray(h)
         return self._fused(
             h,
             background,

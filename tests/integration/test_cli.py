@@ -112,6 +112,7 @@ def test_demo_runs_records_and_the_recording_tracks(tmp_path: Path) -> None:
     assert summary["nodes"] == 6
     assert summary["fusion_updates"] > 150
     assert summary["decode_errors"] == 0
+    assert summary["handler_errors"] == 0
     assert rec.is_file()
     out = tmp_path / "t.jsonl"
     proc = uwbnet("track", str(rec), "--out", str(out))

@@ -267,3 +267,29 @@ def test_fused_background_cfar_gives_the_per_step_results(monkeypatch):
         np.testing.assert_array_equal(a.cov, b.cov)
         n_pos += a.positions.shape[0]
     assert n_pos >= 40  # the people were located: the comparison covers detections
+
+
+@pytest.mark.parametrize("layout", ["fortran", "broadcast"])
+def test_frames_in_any_memory_layout_give_the_c_ordered_results(layout):
+    """A driver may hand over a transposed or broadcast frame: the fused background + CFAR
+    call then falls back or takes a C-ordered background (it raised a numba TypeError from
+    the third frame on, outside the agent's rejection handling); results are the C-ordered
+    frames' results, bit for bit."""
+    g = bat_geometry()
+    rng = np.random.default_rng(4)
+    body = body_offsets(rng)
+    frames = [
+        scene_ir(M_SEQUENCE, g, [(np.array([4.0, 0.5 + 0.02 * k]), body)], rng) for k in range(8)
+    ]
+    if layout == "broadcast":
+        # both receivers the same row, as a broadcast view
+        frames = [np.broadcast_to(f[:1], f.shape) for f in frames]
+    plain = NodeDsp(g, M_SEQUENCE, NodeDspConfig(range_offset=0.0))
+    other = NodeDsp(g, M_SEQUENCE, NodeDspConfig(range_offset=0.0))
+    for k, f in enumerate(frames):
+        a = plain.process(100 + k / 50, np.ascontiguousarray(f))
+        view = np.asfortranarray(f) if layout == "fortran" else f
+        b = other.process(100 + k / 50, view)
+        for x, y in zip(a.ranges, b.ranges, strict=True):
+            np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(a.positions, b.positions)

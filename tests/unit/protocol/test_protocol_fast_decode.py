@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import protocol
-from protocol import Detections, ProtocolError
+from protocol import DecodeError, Detections, ProtocolError
 from protocol.messages import _detections_fast
 from protocol.schema import decode_fields
 
@@ -48,6 +48,8 @@ def _generic(m: dict[str, Any]) -> Any:
         return decode_fields(Detections, body)
     except ProtocolError as exc:
         return type(exc), str(exc)
+    except (TypeError, ValueError, IndexError) as exc:  # as protocol.decode types them
+        return DecodeError, f"detections: {exc}".splitlines()[0]
 
 
 def _decoded(m: dict[str, Any]) -> Any:
@@ -113,6 +115,10 @@ VARIANTS = [
     (("positions", "shape"), [2, 2, 1]),
     (("positions", "shape"), [2, True]),
     (("positions", "shape"), (2, 2)),
+    # zero bytes, but a shape numpy cannot make: a typed error, not numpy's ValueError
+    (("positions", "shape"), [0, 2**63]),
+    (("positions", "shape"), [0, 2**62]),
+    (("cov", "shape"), [0, 2**62, 2]),
     (("positions", "data"), b"\x00" * 8),
     (("positions", "data"), _NAN8 * 2),
     (("positions", "data"), "text"),

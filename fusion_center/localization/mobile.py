@@ -239,6 +239,8 @@ class RangingLocalizer:
         self._nis_fix: deque[float] = deque(maxlen=self.config.cov_window)
         # squared LOS innovations (standard deviations) of the recent rounds
         self._z2: deque[float] = deque(maxlen=4 * self.config.cov_window)
+        #: plain track with the links' own std: the recent fixes' reduced chi-square
+        self._chi2_fix: deque[float] = deque(maxlen=self.config.cov_window)
 
     def los_decisions(self) -> dict[str, bool]:
         """The current NLOS decision of every anchor with a history (True: LOS): eq. (6),
@@ -285,12 +287,20 @@ class RangingLocalizer:
         return out
 
     def _cov_factor(self) -> float:
-        """Factor on the published position covariance (robust track): the mean normalised
+        """Factor on the published position covariance. Plain track with the links' own std
+        (linear LS): the recent fixes' mean reduced chi-square (the a-posteriori variance of
+        unit weight of least squares), at least 1. Robust track: the mean normalised
         innovation of the recent fixes against the prediction over its expectation (2),
         at least 1 (covariance matching, after Mehra). The track's covariance is that of
         Gaussian errors; the fixes' errors have a tail (leaked multipath outliers, errors
         correlated over a standing node's rounds), and the mean, unlike a median, counts it,
         so that the published covariance matches the mean-square error."""
+        if not self._robust_on:
+            # plain track (linear LS with the links' own std): the fixes' mean reduced
+            # chi-square, clipped per fix, at least 1 (the mean counts the tail)
+            if len(self._chi2_fix) < (self._chi2_fix.maxlen or 1) // 4:
+                return 1.0
+            return max(float(np.mean(np.minimum(self._chi2_fix, 1e3))), 1.0)
         if not self._nis_fix or len(self._nis_fix) < self._nis_fix.maxlen // 4:
             return 1.0
         # the LOS ranges' spread beyond their reported noise core (median squared innovation
@@ -486,6 +496,13 @@ class RangingLocalizer:
         fix = self.locator.locate(pos[:, :2], r, std, initial=initial)
         if robust:
             fix, std = self._snoop(pos[:, :2], r, std, ~nlos, fix, initial)
+        elif tight and fix.ok and r.size > 2:
+            # the plain track fed with the links' own std (linear LS): the fix's weighted
+            # residual over its degrees of freedom (the a-posteriori variance of unit weight),
+            # for the published covariance's factor (:meth:`_cov_factor`); without it a
+            # multipath tail left a mean NEES of 63 (review, stop 20)
+            res = (r - np.linalg.norm(pos[:, :2] - fix.position, axis=1)) / std
+            self._chi2_fix.append(float(np.sum(res**2)) / (r.size - 2))
         if prior is not None and self.config.mitigate and self.config.branch_gate > 0:
             # with the robust track's tight prediction, the branch test asks whether the
             # local solution is reachable by a manoeuvre, not whether it fits the cruise

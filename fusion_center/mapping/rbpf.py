@@ -164,7 +164,8 @@ class SlamConfig:
         Mature landmarks (see ``weight_hits``, ``weight_spread``) the map needs for it.
     relocalise_hypotheses : int
         The relocalisation matches the held stop against the maps and poses of this many of
-        the heaviest particles and keeps the match that explains the most pairs.
+        the heaviest particles and keeps the match that explains the most pairs. 3 kept the
+        robot on room_pillar filter seed 0 (1.76 -> 0.76 m), at about 2.2 times the CPU.
     seed : int
         Seed of the filter's random generator.
     """

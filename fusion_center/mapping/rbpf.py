@@ -162,6 +162,10 @@ class SlamConfig:
         seed-1 recording, filter seeds 0 / 1: 2.17 / 1.45 m at 0.05 m, 1.76 / 0.36 m at 0.1 m.
     relocalise_min_landmarks : int
         Mature landmarks (see ``weight_hits``, ``weight_spread``) the map needs for it.
+    relocalise_hypotheses : int
+        The relocalisation matches the held stop against the maps and poses of this many of
+        the heaviest particles and keeps the match that explains the most pairs. 3 kept the
+        robot on room_pillar filter seed 0 (1.76 -> 0.76 m), at about 2.2 times the CPU.
     seed : int
         Seed of the filter's random generator.
     """
@@ -200,6 +204,7 @@ class SlamConfig:
     relocalise_reach: float = 6.0
     relocalise_sigma: float = 0.1
     relocalise_min_landmarks: int = 4
+    relocalise_hypotheses: int = 1
     seed: int = 0
 
 
@@ -741,11 +746,19 @@ class RbpfSlam:
             d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
             d -= w @ d
             cov = (w[:, None] * d).T @ d
-            kw = {"bias": float(self.bias[b]), "mount": float(self.mount[b])}
             relp = np.array(rel)
-            cand, logp = self.relocaliser.search(self.pose[b], cov, relp, pairs, lmap, **kw)
-            best = cand[np.argmax(logp)]
-            explained = self.relocaliser.explained(best, relp, pairs, lmap, **kw)
+            # several hypotheses (the heaviest particles' maps and poses): the match that
+            # explains the most pairs wins, so one unlucky heaviest particle does not decide
+            explained = -1
+            for h in np.argsort(-self.logw)[: max(cfg.relocalise_hypotheses, 1)]:
+                h_map = lmap if h == b else self._match_map(int(h))
+                if not h_map.kind.size:
+                    continue
+                kw = {"bias": float(self.bias[h]), "mount": float(self.mount[h])}
+                c_h, l_h = self.relocaliser.search(self.pose[h], cov, relp, pairs, h_map, **kw)
+                e_h = self.relocaliser.explained(c_h[np.argmax(l_h)], relp, pairs, h_map, **kw)
+                if e_h > explained:
+                    explained, cand, logp, b = e_h, c_h, l_h, int(h)
             ok = explained >= cfg.relocalise_explained * n_pairs
             self.relocalise_log.append((self.k, n_pairs, explained, ok, self._held_spread))
             if ok:

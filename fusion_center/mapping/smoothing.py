@@ -74,6 +74,18 @@ class SmootherConfig:
     landmark_prior : float
         Weak prior on every landmark around its initial value (m, or rad for a wall's
         normal), which keeps landmarks without any associated echo determined.
+    extent_quantile : float
+        A wall's extent spans these quantiles of its specular points.
+    merge_dist, merge_angle : float
+        Between rounds, walls whose lines are within ``merge_dist`` (m) and ``merge_angle``
+        (rad) predict the same echoes and are merged into one (0: off).
+    merge_point_dist : float
+        Between rounds, corners and points closer than this are merged (m; 0: off).
+    refit_kinds : bool
+        Between rounds, every landmark with echoes from at least 2 stops is fitted alone, at
+        the current poses, both as a wall and as a point-like landmark (its own kind, or the
+        better of corner and point for a wall); it changes kind when the other fit's robust
+        cost is below ``kind_switch_ratio`` times its own.
     """
 
     keyframe_step: int = 5
@@ -90,6 +102,11 @@ class SmootherConfig:
     fov: float = np.radians(60.0)
     landmark_prior: float = 1.0
     extent_quantile: float = 0.05
+    merge_dist: float = 0.0
+    merge_angle: float = np.radians(8.0)
+    merge_point_dist: float = 0.0
+    refit_kinds: bool = False
+    kind_switch_ratio: float = 0.7
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -139,6 +156,69 @@ def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
 
 def _wrap(a: FloatArray) -> FloatArray:
     return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def merge_duplicates(
+    kinds: IntArray,
+    states: FloatArray,
+    support: FloatArray,
+    *,
+    wall_dist: float,
+    wall_angle: float,
+    point_dist: float,
+) -> tuple[IntArray, FloatArray]:
+    """Merge landmarks that predict the same echoes: walls on nearly the same line, and
+    corners or points close together (the filter places one face again from a pose that
+    was off, and the copies then split its echoes between them).
+
+    Parameters
+    ----------
+    kinds : ndarray of int, shape (l,)
+    states : ndarray, shape (l, 2)
+        ``(alpha, d)`` of walls, ``(x, y)`` of corners and points.
+    support : ndarray, shape (l,)
+        Echo pairs of each landmark: the best supported one of a group keeps its kind, and the
+        merged state is the support-weighted mean.
+    wall_dist, wall_angle, point_dist : float
+        Merge thresholds, m and rad (0: no merging of that kind).
+
+    Returns
+    -------
+    (ndarray of int, ndarray)
+        The merged kinds and states; the landmarks keep their order (a merged group sits
+        where its best supported member was).
+    """
+    n = kinds.size
+    alive = np.ones(n, bool)
+    st = states.copy()
+    w = np.maximum(support.astype(float), 1e-3)
+    nrm = np.stack([np.cos(st[:, 0]), np.sin(st[:, 0])], -1)
+    wall = kinds == WALL
+    for i in np.argsort(-w):
+        if not alive[i]:
+            continue
+        if wall[i]:
+            if wall_dist <= 0.0:
+                continue
+            same = (
+                alive
+                & wall
+                & (nrm @ nrm[i] >= np.cos(wall_angle))
+                & (np.abs(st[:, 1] - st[i, 1]) <= wall_dist)
+            )
+            ww = w[same] / w[same].sum()
+            m = ww @ nrm[same]
+            st[i] = [np.arctan2(m[1], m[0]), ww @ st[same, 1]]
+        else:
+            if point_dist <= 0.0:
+                continue
+            same = alive & ~wall & (np.hypot(*(st[:, :2] - st[i, :2]).T) <= point_dist)
+            ww = w[same] / w[same].sum()
+            st[i] = ww @ st[same]
+        w[i] = w[same].sum()
+        same[i] = False
+        alive &= ~same
+    return kinds[alive], st[alive]
 
 
 class LeastSquaresPathMapSmoother:
@@ -204,6 +284,130 @@ class LeastSquaresPathMapSmoother:
                 n = np.stack([np.cos(st[:, 0]), np.sin(st[:, 0])], -1)
                 ok[m] = st[:, 1] - np.sum(n * tx_b[m], -1) > 0.05
         return ranges, ok, direction
+
+    def fit_alone(
+        self,
+        kind: int,
+        states: FloatArray,
+        lm: IntArray,
+        z: FloatArray,
+        tx: FloatArray,
+        rx: FloatArray,
+        iterations: int = 6,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Fit every landmark as ``kind`` to its own echoes, poses held fixed.
+
+        Iteratively reweighted Gauss-Newton on the Fig. 19 model with the Cauchy loss,
+        vectorised over landmarks (each has 2 unknowns).
+
+        Parameters
+        ----------
+        kind : int
+        states : ndarray, shape (l, 2)
+            Initial states.
+        lm : ndarray of int, shape (m,)
+            Landmark of every echo pair.
+        z : ndarray, shape (m, 2)
+            The pairs' ranges, m.
+        tx, rx : ndarray, shapes (m, 2) and (m, 2, 2)
+            World antennas at each pair's pose, m.
+
+        Returns
+        -------
+        (ndarray of shape (l, 2), ndarray of shape (l,))
+            Fitted states and the robust cost ``sum 0.5 c^2 log(1 + res^2 / c^2)`` of each.
+        """
+        cfg = self.config
+        st = np.array(states, float)
+        n = st.shape[0]
+        c2 = cfg.loss_scale**2
+        for _ in range(iterations):
+            r, jac, _ = predict(kind, st[lm], tx, rx)
+            res = (z - r - self.bias) / cfg.range_sigma
+            w = 1.0 / (1.0 + res**2 / c2)
+            jn = jac / cfg.range_sigma
+            a = np.einsum("mj,mjk,mjl->mkl", w, jn, jn).reshape(-1, 4)
+            g = np.einsum("mj,mjk,mj->mk", w, jn, res)
+            a_l = np.stack([np.bincount(lm, a[:, i], minlength=n) for i in range(4)], -1)
+            g_l = np.stack([np.bincount(lm, g[:, i], minlength=n) for i in range(2)], -1)
+            a_l = a_l.reshape(-1, 2, 2) + 1e-3 * np.eye(2)
+            step = np.linalg.solve(a_l, g_l[..., None])[..., 0]
+            # a step of more than 0.3 m (or rad) is a poor linearisation: shorten it
+            norm = np.linalg.norm(step, axis=1, keepdims=True)
+            st += step * np.minimum(1.0, 0.3 / np.maximum(norm, 1e-12))
+        r, _, _ = predict(kind, st[lm], tx, rx)
+        res = (z - r - self.bias) / cfg.range_sigma
+        cost = np.bincount(lm, 0.5 * c2 * np.log1p(res**2 / c2).sum(1), minlength=n)
+        return st, cost
+
+    def refit_kinds(
+        self,
+        kinds: IntArray,
+        states: FloatArray,
+        lm: IntArray,
+        z: FloatArray,
+        poses: FloatArray,
+        stops: IntArray,
+    ) -> tuple[IntArray, FloatArray]:
+        """Re-decide wall against point-like for every landmark seen from 2 stops or more
+        (``SmootherConfig.refit_kinds``): each is fitted alone both ways at the current
+        poses (a wall as a corner and as a point, the cheaper counting), and the kind changes
+        when the other fit costs less than ``kind_switch_ratio`` times its own.
+
+        Parameters
+        ----------
+        kinds, states : ndarray, shapes (l,) and (l, 2)
+        lm : ndarray of int, shape (m,)
+            Landmark of every associated pair.
+        z : ndarray, shape (m, 2)
+            The pairs' ranges, m.
+        poses : ndarray, shape (m, 3)
+            Robot pose of each pair, m and rad.
+        stops : ndarray of int, shape (l,)
+            Distinct stops each landmark's pairs come from.
+        """
+        n = kinds.size
+        if n == 0 or lm.size == 0:
+            return kinds, states
+        tx, rx, _ = self._array(poses)
+        cnt = np.maximum(np.bincount(lm, minlength=n), 1)
+        mean_tx = np.stack([np.bincount(lm, tx[:, i], minlength=n) for i in range(2)], -1)
+        mean_tx /= cnt[:, None]
+        wall = kinds == WALL
+        # initial wall of a point-like landmark: the line through it facing the robot
+        to = states - mean_tx
+        alpha = np.arctan2(to[:, 1], to[:, 0])
+        as_wall = np.where(
+            wall[:, None],
+            states,
+            np.column_stack(
+                [alpha, np.sum(np.stack([np.cos(alpha), np.sin(alpha)], -1) * states, 1)]
+            ),
+        )
+        # initial point of a wall: the mean of its specular points
+        nrm = np.stack([np.cos(states[:, 0]), np.sin(states[:, 0])], -1)
+        foot = tx + (states[lm, 1] - np.sum(nrm[lm] * tx, 1))[:, None] * nrm[lm]
+        mean_foot = np.stack([np.bincount(lm, foot[:, i], minlength=n) for i in range(2)], -1)
+        as_point = np.where(wall[:, None], mean_foot / cnt[:, None], states)
+        st_w, cost_w = self.fit_alone(WALL, as_wall, lm, z, tx, rx)
+        st_c, cost_c = self.fit_alone(CORNER, as_point, lm, z, tx, rx)
+        st_q, cost_q = self.fit_alone(POINT, as_point, lm, z, tx, rx)
+        # a point-like landmark keeps its own kind; a wall may become either (the cheaper)
+        point_kind = np.where(wall, np.where(cost_c <= cost_q, CORNER, POINT), kinds)
+        is_c = point_kind == CORNER
+        st_p = np.where(is_c[:, None], st_c, st_q)
+        cost_p = np.where(is_c, cost_c, cost_q)
+        ratio = self.config.kind_switch_ratio
+        eligible = stops >= 2
+        to_point = eligible & wall & (cost_p < ratio * cost_w)
+        to_wall = eligible & ~wall & (cost_w < ratio * cost_p)
+        kinds = kinds.copy()
+        states = states.copy()
+        kinds[to_point] = point_kind[to_point]
+        states[to_point] = st_p[to_point]
+        kinds[to_wall] = WALL
+        states[to_wall] = st_w[to_wall]
+        return kinds, states
 
     # --- the problem --------------------------------------------------------------------------
 
@@ -414,6 +618,31 @@ class LeastSquaresPathMapSmoother:
                 cost_before = float(0.5 * np.sum(fun(x) ** 2))
             x = sol.x
             cost_after = float(sol.cost)
+            if rnd + 1 < cfg.rounds and (cfg.merge_dist > 0.0 or cfg.merge_point_dist > 0.0):
+                # the landmark set itself is re-made: copies of one face merge, and the next
+                # round re-associates the echoes with the merged set
+                kp, st = unpack(x)
+                support = np.bincount(assoc[assoc >= 0], minlength=n_lm)
+                kinds, states0 = merge_duplicates(
+                    kinds,
+                    st,
+                    support,
+                    wall_dist=cfg.merge_dist,
+                    wall_angle=cfg.merge_angle,
+                    point_dist=cfg.merge_point_dist,
+                )
+                n_lm = kinds.size
+                x = np.concatenate([x[:n_pose_var], states0.reshape(-1)])
+            if rnd + 1 < cfg.rounds and cfg.refit_kinds:
+                assoc = associate(x)
+                kp, st = unpack(x)
+                used = assoc >= 0
+                key_ls = np.unique(np.column_stack([assoc[used], stop_of[acq[used]]]), axis=0)
+                n_stops = np.bincount(key_ls[:, 0], minlength=n_lm) if key_ls.size else 0
+                kinds, states0 = self.refit_kinds(
+                    kinds, st, assoc[used], z[used], all_poses(kp)[acq[used]], n_stops
+                )
+                x = np.concatenate([x[:n_pose_var], states0.reshape(-1)])
         assoc = associate(x)
         kp, st = unpack(x)
         out_poses = all_poses(kp)

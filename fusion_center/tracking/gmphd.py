@@ -605,8 +605,13 @@ class GmPhdTracker(Tracker):
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
         self._dup_count: dict[tuple[int, int], int] = {}
-        #: Per pair of labels followed (``duplicate_window``): steps, mean gap (dx, dy, dvx, dvy).
-        self._dup_gap: dict[tuple[int, int], tuple[int, FloatArray]] = {}
+        #: Pairs of labels followed (``duplicate_window``), sorted by key ``older << 32 |
+        #: younger``: keys, steps, mean state difference older - younger (x, vx, y, vy).
+        self._dup_gap: tuple[IntArray, IntArray, FloatArray] = (
+            np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=np.int64),
+            np.zeros((0, 4)),
+        )
         self._t_dup: float | None = None
         self._last_strong: dict[int, float] = {}
         self._last_report: dict[int, tuple[float, float, float]] = {}
@@ -1387,30 +1392,38 @@ class GmPhdTracker(Tracker):
         """
         cfg = self.config
         fading = self._fading
-        for lb in [lb for lb, e in fading.items() if t - e[0] > cfg.relink_time]:
-            del fading[lb]
-        strong_now = set(labels[strong].tolist())
-        conf = np.fromiter((lb in self._confirmed for lb in labels.tolist()), bool, labels.size)
-        for i, lb in enumerate(labels.tolist()):
-            if lb in self._hits or not fading:
-                continue
-            # a new label on a confirmed track is a second label of that person, not a
-            # person's re-birth
-            gap = m[conf][:, ::2] - m[i, ::2]
-            if conf.any() and np.min(np.hypot(gap[:, 0], gap[:, 1])) < cfg.reid_radius:
-                continue
-            best, best_d = None, math.inf
-            for old, (tl, x, y, _, _) in fading.items():
-                if old in strong_now or old in self._confirmed:
-                    continue
-                d = math.hypot(m[i, 0] - x, m[i, 2] - y)
-                if d <= cfg.reid_radius + cfg.reid_speed * (t - tl) and d < best_d:
-                    best, best_d = old, d
-            if best is not None:
-                _, _, _, h, st = fading.pop(best)
-                self._hits[lb], self._strong_time[lb] = h, st
-        for i, lb in enumerate(labels.tolist()):
-            if strong[i] and lb not in self._confirmed:
+        if fading:
+            for lb in [lb for lb, e in fading.items() if t - e[0] > cfg.relink_time]:
+                del fading[lb]
+        lab = labels.tolist()
+        confirmed = self._confirmed
+        new = [i for i, lb in enumerate(lab) if lb not in self._hits] if fading else []
+        cand: list[int] = []
+        if new:
+            strong_now = set(labels[strong].tolist())
+            cand = [lb for lb in fading if lb not in strong_now and lb not in confirmed]
+        if new and cand:
+            xy = m[new][:, ::2]
+            past = np.array([fading[lb][:3] for lb in cand])  # (C, 3): t, x, y
+            d = np.linalg.norm(xy[:, None, :] - past[None, :, 1:], axis=2)
+            d[d > cfg.reid_radius + cfg.reid_speed * (t - past[:, 0])] = math.inf
+            conf = np.fromiter((lb in confirmed for lb in lab), bool, len(lab))
+            if conf.any():
+                # a new label on a confirmed track is a second label of that person, not a
+                # person's re-birth
+                gap = np.linalg.norm(xy[:, None, :] - m[conf][None, :, ::2], axis=2)
+                d[gap.min(axis=1) < cfg.reid_radius] = math.inf
+            for k, i in enumerate(new):  # nearest wins; each history is handed on once
+                j = int(np.argmin(d[k]))
+                if d[k, j] < math.inf:
+                    _, _, _, h, st = fading.pop(cand[j])
+                    self._hits[lab[i]], self._strong_time[lab[i]] = h, st
+                    d[:, j] = math.inf
+        for lb in confirmed:
+            fading.pop(lb, None)
+        for i in np.flatnonzero(strong).tolist():
+            lb = lab[i]
+            if lb not in confirmed:
                 fading[lb] = (
                     t,
                     float(m[i, 0]),
@@ -1418,8 +1431,6 @@ class GmPhdTracker(Tracker):
                     self._hits.get(lb, 0) + 1,
                     self._strong_time.get(lb, 0.0),
                 )
-            elif lb in self._confirmed:
-                fading.pop(lb, None)
 
     def _fold_duplicate_labels(self) -> None:
         """Fold labels that follow one person into the oldest (see ``duplicate_steps``)."""
@@ -1466,7 +1477,9 @@ class GmPhdTracker(Tracker):
         mix = self._mix
         dt = 0.0 if self._t_dup is None else max(t - self._t_dup, 0.0)
         self._t_dup = t
-        gaps: dict[tuple[int, int], tuple[int, FloatArray]] = {}
+        keys = np.zeros(0, dtype=np.int64)
+        n = np.zeros(0, dtype=np.int64)
+        mean = np.zeros((0, 4))
         if mix.w.size >= 2 and cfg.duplicate_steps > 0:
             order = np.lexsort((-mix.w, mix.label))
             lab = mix.label[order]
@@ -1474,29 +1487,34 @@ class GmPhdTracker(Tracker):
             first[1:] = lab[1:] != lab[:-1]
             heads = order[first]
             heads = heads[mix.w[heads] > 0.05]
-            labels = mix.label[heads].tolist()
-            m = mix.m[heads]
-            dp = np.linalg.norm(m[:, None, ::2] - m[None, :, ::2], axis=2)
-            gain = -math.expm1(-dt / cfg.duplicate_window)
-            near = np.triu(dp < 3.0 * cfg.duplicate_distance, 1)
-            for i, j in zip(*np.nonzero(near), strict=True):
-                a, b = labels[i], labels[j]
-                diff = m[i] - m[j] if a < b else m[j] - m[i]
-                key = (min(a, b), max(a, b))
-                n, mean = self._dup_gap.get(key, (0, diff))
-                mean = mean + gain * (diff - mean)
-                close = (
-                    math.hypot(mean[0], mean[2]) < cfg.duplicate_distance
-                    and math.hypot(mean[1], mean[3]) < cfg.duplicate_velocity
+            labels = mix.label[heads]
+            xy = mix.m[heads][:, ::2]
+            dp = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2)
+            ii, jj = np.nonzero(np.triu(dp < 3.0 * cfg.duplicate_distance, 1))
+            if ii.size:
+                swap = labels[ii] > labels[jj]
+                lo, hi = np.where(swap, jj, ii), np.where(swap, ii, jj)  # older label first
+                diff = mix.m[heads[lo]] - mix.m[heads[hi]]
+                keys = (labels[lo] << 32) + labels[hi]
+                pk, pn, pm = self._dup_gap
+                at = np.minimum(np.searchsorted(pk, keys), max(pk.size - 1, 0))
+                found = (pk[at] == keys) if pk.size else np.zeros(keys.size, bool)
+                mean = np.where(found[:, None], pm[at] if pk.size else diff, diff)
+                mean = mean - math.expm1(-dt / cfg.duplicate_window) * (diff - mean)
+                close = (np.hypot(mean[:, 0], mean[:, 2]) < cfg.duplicate_distance) & (
+                    np.hypot(mean[:, 1], mean[:, 3]) < cfg.duplicate_velocity
                 )
-                gaps[key] = (n + 1 if close else max(n - 1, 0), mean)
-        self._dup_gap = gaps
-        for (a, b), (n, _) in gaps.items():
-            if n >= cfg.duplicate_steps:
-                mix.label[mix.label == b] = a
-                self._confirmed.discard(b)
-                self._hits.pop(b, None)
-                self._strong_time.pop(b, None)
+                n = np.where(found, pn[at] if pk.size else 0, 0)
+                n = np.where(close, n + 1, np.maximum(n - 1, 0))
+                srt = np.argsort(keys)
+                keys, n, mean = keys[srt], n[srt], mean[srt]
+        self._dup_gap = (keys, n, mean)
+        for key in keys[n >= cfg.duplicate_steps].tolist():
+            a, b = key >> 32, key & 0xFFFFFFFF
+            mix.label[mix.label == b] = a
+            self._confirmed.discard(b)
+            self._hits.pop(b, None)
+            self._strong_time.pop(b, None)
 
     def _count_duplicates(self, pairs: list[tuple[int, int]] | list[list[int]] | None) -> None:
         """Count each pair of labels ``pairs`` found close this step and fold those close for

@@ -110,6 +110,13 @@ class GmPhdConfig:
         frame rate (3 steps are 60 ms at 50 Hz, 150 ms at 20 Hz); false estimates that come
         from people themselves (a swapped pairing of two people's ranges, one body part seen
         at a wrong angle) persist for a few frames, a person for seconds.
+    claim_time : float
+        A confirmed label claims the measurements in its gate (they seed no birth, and its
+        components are not merged with other labels' in a sensor's update) until it has been
+        below ``keep_threshold`` for this long (s; ``inf``: as long as it is confirmed). A
+        track that died keeps a light component whose covariance grows without bound (7 m
+        standard deviation after some seconds on the hall20x12 proxy): its gate then covers
+        the hall, and no person entering it was born for seconds.
     relink_time : float
         A new label seeded within ``reid_radius + reid_speed * dt`` (m, m/s) of where a
         not yet confirmed label was last above ``extract_threshold``, ``dt <= relink_time``
@@ -243,6 +250,7 @@ class GmPhdConfig:
     max_label_miss: float = 0.7
     miss_correlation_time: float = 0.0
     coast_time: float = 0.25
+    claim_time: float = 2.0
     relink_time: float = 0.5
     reid_time: float = 2.0
     reid_radius: float = 0.5
@@ -604,6 +612,9 @@ class GmPhdTracker(Tracker):
         self._t_extract: float | None = None
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
+        #: Confirmed labels that claim the measurements in their gate (see ``claim_time``).
+        self._claim_arr = np.zeros(0, dtype=np.int64)
+        self._confirmed_t: dict[int, float] = {}
         self._dup_count: dict[tuple[int, int], int] = {}
         #: Pairs of labels followed (``duplicate_window``), sorted by key ``older << 32 |
         #: younger``: keys, steps, mean state difference older - younger (x, vx, y, vy).
@@ -679,9 +690,12 @@ class GmPhdTracker(Tracker):
                 mix.w[src] -= w
                 self._mix = _Mixture.concat((mix, _Mixture(w, m, P, mix.label[src].copy())))
 
-    def _protected(self, mix: _Mixture) -> npt.NDArray[np.bool_] | None:
-        """Components of confirmed labels, or None when no label is confirmed yet."""
-        arr = self._confirmed_arr  # sorted
+    def _protected(
+        self, mix: _Mixture, arr: IntArray | None = None
+    ) -> npt.NDArray[np.bool_] | None:
+        """Components of confirmed labels (or of the sorted labels ``arr``), or None when
+        there are none."""
+        arr = self._confirmed_arr if arr is None else arr  # sorted
         if arr.size == 0:
             return None
         pos = np.minimum(np.searchsorted(arr, mix.label), arr.size - 1)
@@ -770,7 +784,7 @@ class GmPhdTracker(Tracker):
             explained = total / (kappa + total)
             # A measurement in the gate of a confirmed track seeds no birth, however light the
             # track is after missed detections: the birth would later absorb it in a merge.
-            owned = self._protected(act)
+            owned = self._protected(act, self._claim_arr)
             if owned is not None:
                 claimed = (gated & owned[:, None]).any(axis=0)
             if cfg.adapt_detection and pd_frame is None:
@@ -802,7 +816,12 @@ class GmPhdTracker(Tracker):
             act = act.take(act.w > cfg.prune_threshold)
             act = _Mixture(
                 *merge_components(
-                    act.w, act.m, act.P, act.label, cfg.merge_threshold, self._protected(act)
+                    act.w,
+                    act.m,
+                    act.P,
+                    act.label,
+                    cfg.merge_threshold,
+                    self._protected(act, self._claim_arr),
                 )
             )
             if math.isfinite(cfg.max_label_weight):
@@ -843,7 +862,7 @@ class GmPhdTracker(Tracker):
             _writable(z),
             _writable(R),
             np.broadcast_to(kappa, (n_meas,)).astype(np.float64),
-            self._confirmed_arr,
+            self._claim_arr,
             cfg.gate,
             cfg.prune_threshold,
             cfg.merge_threshold,
@@ -1583,6 +1602,7 @@ class GmPhdTracker(Tracker):
             self._t_extract = t
             self._confirmed.clear()
             self._confirmed_arr = np.zeros(0, dtype=np.int64)
+            self._claim_arr = self._confirmed_arr
             return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
         if self.compiled:
             mix.label, heads, label_w, self._next_label = kernels.label_heads(
@@ -1623,6 +1643,7 @@ class GmPhdTracker(Tracker):
                 strong_time[old] = strong_time.pop(lb)
                 lb = old
             confirmed.add(lb)
+            self._confirmed_t[lb] = t
         self._confirmed = confirmed
         self._confirmed_arr = np.sort(np.fromiter(confirmed, dtype=np.int64, count=len(confirmed)))
 
@@ -1637,6 +1658,15 @@ class GmPhdTracker(Tracker):
             (t - self._last_strong[lb] <= cfg.coast_time for lb in labels.tolist()), bool
         )
         report = is_confirmed & (strong_now | coasting)
+        # (a re-identified track may be confirmed while below keep_threshold: its time counts
+        # from the confirmation)
+        self._confirmed_t = {lb: self._confirmed_t.get(lb, t) for lb in confirmed}
+        claim = [
+            lb
+            for lb in labels[is_confirmed].tolist()
+            if t - max(self._last_strong[lb], self._confirmed_t[lb]) <= cfg.claim_time
+        ]
+        self._claim_arr = np.sort(np.array(claim, dtype=np.int64))
         reported = labels[report].tolist()
         for lb in set(self._last_report) - set(reported):
             self._lost[lb] = self._last_report[lb]  # it was reported last step, not now

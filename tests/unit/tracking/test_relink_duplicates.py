@@ -80,3 +80,43 @@ def test_two_labels_jittering_about_one_person_are_folded_crossing_people_are_no
     # The step-by-step test (no averaging) never sees the jittering pair close for long.
     assert _steps_to_fold({"duplicate_window": 0.0, "duplicate_steps": 10}, one_person) is None
     assert _steps_to_fold({"duplicate_window": 0.5}, crossing) is None
+
+
+def _entering_after_a_death(claim_time: float) -> float:
+    """Time (s) until a person entering at (8, 4) is first reported, 3 s if never, when a
+    confirmed track has died: its light component has drifted out of every sensor's view
+    (so it loses no weight to misses) with a covariance grown to metres (5 m standard
+    deviation; 7 m seen on the hall20x12 proxy), and its gate covers the entrance."""
+    rng = np.random.default_rng(3)
+    tracker = GmPhdTracker(dataclasses.replace(CONFIG, claim_time=claim_time))
+    sensors = sensors_around(10.0, 8.0)
+    t = 0.0
+
+    def frame(xy: np.ndarray):  # type: ignore[no-untyped-def]
+        nonlocal t
+        scans = [detect(rng, s, t + FRAME * j / 6, xy, clutter=0.2) for j, s in enumerate(sensors)]
+        t += FRAME
+        return tracker.step(t, scans)
+
+    for _ in range(int(2.0 / FRAME)):  # a person stands at (5, 4)
+        out = frame(np.array([[5.0, 4.0]]))
+    assert len(out.tracks) == 1
+    for _ in range(int(1.0 / FRAME)):  # ... and vanishes: its track is left light and vague
+        mix = tracker._mix
+        mix.w[:] = np.minimum(mix.w, 1e-3)
+        mix.P[:] = np.diag([25.0, 1.0, 25.0, 1.0])
+        mix.m[:] = [5.0, 0.0, -10.0, 0.0]
+        frame(np.zeros((0, 2)))
+    start = t
+    for _ in range(int(3.0 / FRAME)):
+        out = frame(np.array([[8.0, 4.0]]))
+        if any(abs(q.x - 8.0) < 0.5 and abs(q.y - 4.0) < 0.5 for q in out.tracks):
+            return t - start
+    return 3.0
+
+
+def test_a_dead_track_does_not_claim_the_measurements_of_a_person_entering() -> None:
+    # with claim_time 0.5 s (the dead track fell below keep_threshold 1 s ago) the entering
+    # person is reported after about confirm_time; a track that claims for ever hides it
+    assert _entering_after_a_death(0.5) < 1.0
+    assert _entering_after_a_death(float("inf")) > _entering_after_a_death(0.5) + 0.5

@@ -110,6 +110,19 @@ class GmPhdConfig:
         frame rate (3 steps are 60 ms at 50 Hz, 150 ms at 20 Hz); false estimates that come
         from people themselves (a swapped pairing of two people's ranges, one body part seen
         at a wrong angle) persist for a few frames, a person for seconds.
+    claim_time : float
+        A confirmed label claims the measurements in its gate (they seed no birth, and its
+        components are not merged with other labels' in a sensor's update) until it has been
+        below ``keep_threshold`` for this long (s; ``inf``: as long as it is confirmed). A
+        track that died keeps a light component whose covariance grows without bound (7 m
+        standard deviation after some seconds on the hall20x12 proxy): its gate then covers
+        the hall, and no person entering it was born for seconds.
+    relink_time : float
+        A new label seeded within ``reid_radius + reid_speed * dt`` (m, m/s) of where a
+        not yet confirmed label was last above ``extract_threshold``, ``dt <= relink_time``
+        (s) ago, while that label is below it, takes over its confirmation history (steps
+        and time above ``extract_threshold``); 0 turns it off. See
+        :meth:`GmPhdTracker._relink`.
     reid_time, reid_radius, reid_speed : float
         A new track confirmed within ``reid_time`` (s) of a confirmed track's loss and within
         ``reid_radius + reid_speed * dt`` (m, m/s) of where it was last reported continues its
@@ -202,6 +215,14 @@ class GmPhdConfig:
         ``duplicate_velocity`` (m/s) of each other for ``duplicate_steps`` consecutive steps
         follow one person (an extended target seeded two births): the younger label is
         folded into the older. People who cross differ in velocity and are never folded.
+    duplicate_window : float
+        Time constant (s) over which the gap between two labels is averaged before the
+        ``duplicate_distance`` and ``duplicate_velocity`` tests (0: each step's own gap).
+        Two labels on one person jitter about each other (each chases the body part its
+        measurements came from: gaps of 0-1.2 m and velocity differences of 0.1-3.4 m/s
+        within one second on the hall20x12 proxy), so their gap vectors average out near
+        zero, while people who cross keep a steady relative velocity. A pair is followed
+        while the labels are within ``3 * duplicate_distance`` of each other.
     """
 
     accel_psd: float = 0.5
@@ -229,6 +250,8 @@ class GmPhdConfig:
     max_label_miss: float = 0.7
     miss_correlation_time: float = 0.0
     coast_time: float = 0.25
+    claim_time: float = 2.0
+    relink_time: float = 0.5
     reid_time: float = 2.0
     reid_radius: float = 0.5
     reid_speed: float = 1.0
@@ -247,7 +270,8 @@ class GmPhdConfig:
     extent_std: float = 0.2
     duplicate_distance: float = 0.3
     duplicate_velocity: float = 0.5
-    duplicate_steps: int = 25
+    duplicate_steps: int = 10
+    duplicate_window: float = 0.5
     occlusion_radius: float = 0.35
     occluded_factor: float = 0.2
 
@@ -601,10 +625,23 @@ class GmPhdTracker(Tracker):
         self._t_extract: float | None = None
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
+        #: Confirmed labels that claim the measurements in their gate (see ``claim_time``).
+        self._claim_arr = np.zeros(0, dtype=np.int64)
+        self._confirmed_t: dict[int, float] = {}
         self._dup_count: dict[tuple[int, int], int] = {}
+        #: Pairs of labels followed (``duplicate_window``), sorted by key ``older << 32 |
+        #: younger``: keys, steps, mean state difference older - younger (x, vx, y, vy).
+        self._dup_gap: tuple[IntArray, IntArray, FloatArray] = (
+            np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=np.int64),
+            np.zeros((0, 4)),
+        )
+        self._t_dup: float | None = None
         self._last_strong: dict[int, float] = {}
         self._last_report: dict[int, tuple[float, float, float]] = {}
         self._lost: dict[int, tuple[float, float, float]] = {}
+        #: Unconfirmed labels last above ``extract_threshold``: time, x, y, steps, time above.
+        self._fading: dict[int, tuple[float, float, float, int, float]] = {}
         #: Learned detection probability per sensor id (see ``adapt_detection``).
         self.detection_probabilities: dict[str, float] = {}
         #: Learned detection probability per sensor and distance bin (frame fusion).
@@ -666,9 +703,12 @@ class GmPhdTracker(Tracker):
                 mix.w[src] -= w
                 self._mix = _Mixture.concat((mix, _Mixture(w, m, P, mix.label[src].copy())))
 
-    def _protected(self, mix: _Mixture) -> npt.NDArray[np.bool_] | None:
-        """Components of confirmed labels, or None when no label is confirmed yet."""
-        arr = self._confirmed_arr  # sorted
+    def _protected(
+        self, mix: _Mixture, arr: IntArray | None = None
+    ) -> npt.NDArray[np.bool_] | None:
+        """Components of confirmed labels (or of the sorted labels ``arr``), or None when
+        there are none."""
+        arr = self._confirmed_arr if arr is None else arr  # sorted
         if arr.size == 0:
             return None
         pos = np.minimum(np.searchsorted(arr, mix.label), arr.size - 1)
@@ -757,7 +797,7 @@ class GmPhdTracker(Tracker):
             explained = total / (kappa + total)
             # A measurement in the gate of a confirmed track seeds no birth, however light the
             # track is after missed detections: the birth would later absorb it in a merge.
-            owned = self._protected(act)
+            owned = self._protected(act, self._claim_arr)
             if owned is not None:
                 claimed = (gated & owned[:, None]).any(axis=0)
             if cfg.adapt_detection and pd_frame is None:
@@ -789,7 +829,12 @@ class GmPhdTracker(Tracker):
             act = act.take(act.w > cfg.prune_threshold)
             act = _Mixture(
                 *merge_components(
-                    act.w, act.m, act.P, act.label, cfg.merge_threshold, self._protected(act)
+                    act.w,
+                    act.m,
+                    act.P,
+                    act.label,
+                    cfg.merge_threshold,
+                    self._protected(act, self._claim_arr),
                 )
             )
             if math.isfinite(cfg.max_label_weight):
@@ -830,7 +875,7 @@ class GmPhdTracker(Tracker):
             _writable(z),
             _writable(R),
             np.broadcast_to(kappa, (n_meas,)).astype(np.float64),
-            self._confirmed_arr,
+            self._claim_arr,
             cfg.gate,
             cfg.prune_threshold,
             cfg.merge_threshold,
@@ -1332,7 +1377,10 @@ class GmPhdTracker(Tracker):
         mix = self._mix
         if mix.w.size > self.config.max_components:
             self._mix = mix.take(np.argsort(-mix.w)[: self.config.max_components])
-        self._fold_duplicate_labels()
+        if self.config.duplicate_window > 0.0:
+            self._fold_mean_gap_duplicates(t)
+        else:
+            self._fold_duplicate_labels()
         return self._extract(t)
 
     def _reidentify(self, t: float, m: FloatArray) -> int | None:
@@ -1353,6 +1401,67 @@ class GmPhdTracker(Tracker):
         if best is not None:
             del self._lost[best]
         return best
+
+    def _relink(
+        self,
+        t: float,
+        m: FloatArray,
+        labels: npt.NDArray[np.int64],
+        strong: npt.NDArray[np.bool_],
+    ) -> None:
+        """Hand the confirmation history of fading unconfirmed labels to new labels.
+
+        Beyond the chapter: a person seen in a third of the frames (entering at the far end
+        of a hall, by a wall, where every sensor sees the body at a wide angle) gains a label
+        that the next few empty frames cost all its weight (the sensors' misses are treated as
+        independent, and they are not), and the next detection seeds a new label with no
+        history, so no label stays above ``extract_threshold`` for ``confirm_time``. A new
+        label (first seen this step, heads ``m`` of ``labels``) near where an unconfirmed
+        label was last strong (see ``relink_time``), which is not strong now, continues its
+        count of steps and time above the threshold (nearest wins; each history is handed on
+        once). The new label keeps its own id: unconfirmed labels are not reported.
+        """
+        cfg = self.config
+        fading = self._fading
+        if fading:
+            for lb in [lb for lb, e in fading.items() if t - e[0] > cfg.relink_time]:
+                del fading[lb]
+        lab = labels.tolist()
+        confirmed = self._confirmed
+        new = [i for i, lb in enumerate(lab) if lb not in self._hits] if fading else []
+        cand: list[int] = []
+        if new:
+            strong_now = set(labels[strong].tolist())
+            cand = [lb for lb in fading if lb not in strong_now and lb not in confirmed]
+        if new and cand:
+            xy = m[new][:, ::2]
+            past = np.array([fading[lb][:3] for lb in cand])  # (C, 3): t, x, y
+            d = np.linalg.norm(xy[:, None, :] - past[None, :, 1:], axis=2)
+            d[d > cfg.reid_radius + cfg.reid_speed * (t - past[:, 0])] = math.inf
+            conf = np.fromiter((lb in confirmed for lb in lab), bool, len(lab))
+            if conf.any():
+                # a new label on a confirmed track is a second label of that person, not a
+                # person's re-birth
+                gap = np.linalg.norm(xy[:, None, :] - m[conf][None, :, ::2], axis=2)
+                d[gap.min(axis=1) < cfg.reid_radius] = math.inf
+            for k, i in enumerate(new):  # nearest wins; each history is handed on once
+                j = int(np.argmin(d[k]))
+                if d[k, j] < math.inf:
+                    _, _, _, h, st = fading.pop(cand[j])
+                    self._hits[lab[i]], self._strong_time[lab[i]] = h, st
+                    d[:, j] = math.inf
+        for lb in confirmed:
+            fading.pop(lb, None)
+        for i in np.flatnonzero(strong).tolist():
+            lb = lab[i]
+            if lb not in confirmed:
+                fading[lb] = (
+                    t,
+                    float(m[i, 0]),
+                    float(m[i, 2]),
+                    self._hits.get(lb, 0) + 1,
+                    self._strong_time.get(lb, 0.0),
+                )
 
     def _fold_duplicate_labels(self) -> None:
         """Fold labels that follow one person into the oldest (see ``duplicate_steps``)."""
@@ -1384,6 +1493,59 @@ class GmPhdTracker(Tracker):
         self._count_duplicates(
             [(int(labels[i]), int(labels[j])) for i, j in zip(*np.nonzero(close), strict=True)]
         )
+
+    def _fold_mean_gap_duplicates(self, t: float) -> None:
+        """Fold labels whose mean gap stays within a body width (see ``duplicate_window``).
+
+        Each pair of label heads (weight above 0.05) within ``3 * duplicate_distance`` of each
+        other keeps an exponential average, time constant ``duplicate_window``, of its state
+        difference; after ``duplicate_steps`` steps with a mean position gap below
+        ``duplicate_distance`` and a mean velocity gap below ``duplicate_velocity`` (a step
+        outside them costs one step, as in :meth:`_count_duplicates`), the younger label is
+        folded into the older.
+        """
+        cfg = self.config
+        mix = self._mix
+        dt = 0.0 if self._t_dup is None else max(t - self._t_dup, 0.0)
+        self._t_dup = t
+        keys = np.zeros(0, dtype=np.int64)
+        n = np.zeros(0, dtype=np.int64)
+        mean = np.zeros((0, 4))
+        if mix.w.size >= 2 and cfg.duplicate_steps > 0:
+            order = np.lexsort((-mix.w, mix.label))
+            lab = mix.label[order]
+            first = np.ones(lab.size, dtype=bool)
+            first[1:] = lab[1:] != lab[:-1]
+            heads = order[first]
+            heads = heads[mix.w[heads] > 0.05]
+            labels = mix.label[heads]
+            xy = mix.m[heads][:, ::2]
+            dp = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2)
+            ii, jj = np.nonzero(np.triu(dp < 3.0 * cfg.duplicate_distance, 1))
+            if ii.size:
+                swap = labels[ii] > labels[jj]
+                lo, hi = np.where(swap, jj, ii), np.where(swap, ii, jj)  # older label first
+                diff = mix.m[heads[lo]] - mix.m[heads[hi]]
+                keys = (labels[lo] << 32) + labels[hi]
+                pk, pn, pm = self._dup_gap
+                at = np.minimum(np.searchsorted(pk, keys), max(pk.size - 1, 0))
+                found = (pk[at] == keys) if pk.size else np.zeros(keys.size, bool)
+                mean = np.where(found[:, None], pm[at] if pk.size else diff, diff)
+                mean = mean - math.expm1(-dt / cfg.duplicate_window) * (diff - mean)
+                close = (np.hypot(mean[:, 0], mean[:, 2]) < cfg.duplicate_distance) & (
+                    np.hypot(mean[:, 1], mean[:, 3]) < cfg.duplicate_velocity
+                )
+                n = np.where(found, pn[at] if pk.size else 0, 0)
+                n = np.where(close, n + 1, np.maximum(n - 1, 0))
+                srt = np.argsort(keys)
+                keys, n, mean = keys[srt], n[srt], mean[srt]
+        self._dup_gap = (keys, n, mean)
+        for key in keys[n >= cfg.duplicate_steps].tolist():
+            a, b = key >> 32, key & 0xFFFFFFFF
+            mix.label[mix.label == b] = a
+            self._confirmed.discard(b)
+            self._hits.pop(b, None)
+            self._strong_time.pop(b, None)
 
     def _count_duplicates(self, pairs: list[tuple[int, int]] | list[list[int]] | None) -> None:
         """Count each pair of labels ``pairs`` found close this step and fold those close for
@@ -1452,6 +1614,7 @@ class GmPhdTracker(Tracker):
             self._t_extract = t
             self._confirmed.clear()
             self._confirmed_arr = np.zeros(0, dtype=np.int64)
+            self._claim_arr = self._confirmed_arr
             return TrackerOutput(t=t, tracks=(), n_estimate=0.0)
         if self.compiled:
             mix.label, heads, label_w, self._next_label = kernels.label_heads(
@@ -1471,6 +1634,8 @@ class GmPhdTracker(Tracker):
         hits, strong_time = {}, {}
         dt = 0.0 if self._t_extract is None else max(t - self._t_extract, 0.0)
         self._t_extract = t
+        if cfg.relink_time > 0.0:
+            self._relink(t, mix.m[heads], labels, strong)
         for label, is_strong in zip(labels.tolist(), strong.tolist(), strict=True):
             hits[label] = self._hits.get(label, 0) + int(is_strong)
             strong_time[label] = self._strong_time.get(label, 0.0) + dt * is_strong
@@ -1490,6 +1655,7 @@ class GmPhdTracker(Tracker):
                 strong_time[old] = strong_time.pop(lb)
                 lb = old
             confirmed.add(lb)
+            self._confirmed_t[lb] = t
         self._confirmed = confirmed
         self._confirmed_arr = np.sort(np.fromiter(confirmed, dtype=np.int64, count=len(confirmed)))
 
@@ -1504,6 +1670,15 @@ class GmPhdTracker(Tracker):
             (t - self._last_strong[lb] <= cfg.coast_time for lb in labels.tolist()), bool
         )
         report = is_confirmed & (strong_now | coasting)
+        # (a re-identified track may be confirmed while below keep_threshold: its time counts
+        # from the confirmation)
+        self._confirmed_t = {lb: self._confirmed_t.get(lb, t) for lb in confirmed}
+        claim = [
+            lb
+            for lb in labels[is_confirmed].tolist()
+            if t - max(self._last_strong[lb], self._confirmed_t[lb]) <= cfg.claim_time
+        ]
+        self._claim_arr = np.sort(np.array(claim, dtype=np.int64))
         reported = labels[report].tolist()
         for lb in set(self._last_report) - set(reported):
             self._lost[lb] = self._last_report[lb]  # it was reported last step, not now

@@ -105,15 +105,15 @@ def merge_walls(
         if used[i]:
             continue
         cos_ij = n @ n[i]
-        off = np.abs(walls[:, 1] - walls[i, 1])
-        same = (~used) & (cos_ij >= np.cos(angle)) & (off <= dist)
+        t = ends @ tang_all[i]  # (w, 2) end points along wall i
+        s = ends @ n[i] - walls[i, 1]  # (w, 2) their signed distances from its line
+        # on the same line: wall j's end points within ``dist`` of wall i's line (the
+        # offsets' difference is that distance only for parallel lines; at an angle it grows
+        # with the distance from the map origin, so the map's frame decided merges)
+        same = (~used) & (cos_ij >= np.cos(angle)) & (np.abs(s).max(1) <= dist)
         near = same.copy()
         if overlap_dist > 0.0:
-            # Wall j's distance from wall i's line where the two overlap along it: the
-            # offsets' difference ``off`` is that distance only for parallel lines (at an
-            # angle it grows with the distance from the map origin).
-            t = ends @ tang_all[i]  # (w, 2) end points along wall i
-            s = ends @ n[i] - walls[i, 1]  # (w, 2) their signed distances from its line
+            # Wall j's distance from wall i's line where the two overlap along it
             lo = np.maximum(t.min(1), extent[i, 0])
             hi = np.minimum(t.max(1), extent[i, 1])
             overlap = hi > lo

@@ -207,6 +207,11 @@ class SlamConfig:
     relocalise_hypotheses: int = 1
     seed: int = 0
 
+    def __post_init__(self) -> None:
+        k = self.relocalise_hypotheses
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ValueError(f"relocalise_hypotheses must be an integer >= 1, got {k!r}")
+
 
 @dataclass(slots=True)
 class _Landmarks:

@@ -108,6 +108,13 @@ class SmootherConfig:
     refit_kinds: bool = False
     kind_switch_ratio: float = 0.7
 
+    def __post_init__(self) -> None:
+        if not 0.0 < self.kind_switch_ratio <= 1.0:
+            # above 1 both kinds "fit clearly better" than each other: kinds flip every round
+            raise ValueError(f"kind_switch_ratio must be in (0, 1], got {self.kind_switch_ratio}")
+        if self.merge_dist < 0.0 or self.merge_point_dist < 0.0 or self.merge_angle < 0.0:
+            raise ValueError("merge_dist, merge_point_dist and merge_angle must be >= 0")
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SmoothedPathMap:
@@ -190,6 +197,9 @@ def merge_duplicates(
     """
     n = kinds.size
     alive = np.ones(n, bool)
+    # a merged group's survivor is finished: tested again with its moved state and summed
+    # support, it could be absorbed into a weaker landmark it was never close to (review)
+    done = np.zeros(n, bool)
     st = states.copy()
     w = np.maximum(support.astype(float), 1e-3)
     nrm = np.stack([np.cos(st[:, 0]), np.sin(st[:, 0])], -1)
@@ -202,6 +212,7 @@ def merge_duplicates(
                 continue
             same = (
                 alive
+                & ~done
                 & wall
                 & (nrm @ nrm[i] >= np.cos(wall_angle))
                 & (np.abs(st[:, 1] - st[i, 1]) <= wall_dist)
@@ -212,12 +223,13 @@ def merge_duplicates(
         else:
             if point_dist <= 0.0:
                 continue
-            same = alive & ~wall & (np.hypot(*(st[:, :2] - st[i, :2]).T) <= point_dist)
+            same = alive & ~done & ~wall & (np.hypot(*(st[:, :2] - st[i, :2]).T) <= point_dist)
             ww = w[same] / w[same].sum()
             st[i] = ww @ st[same]
         w[i] = w[same].sum()
         same[i] = False
         alive &= ~same
+        done[i] = True
     return kinds[alive], st[alive]
 
 

@@ -134,6 +134,34 @@ def test_overlap_merge_measures_the_gap_where_the_walls_overlap_not_at_the_origi
     assert len(w) == 1
 
 
+@pytest.mark.parametrize("shift", [(-8.0, 0.0), (3.0, -6.0)])
+def test_wall_merge_does_not_depend_on_the_map_origin(shift) -> None:
+    from fusion_center.mapping.features import merge_walls
+
+    # a face seen twice 4 degrees apart, a separate segment of the same line further on,
+    # and a parallel face 1 m away; the same walls in a frame shifted by ``shift`` must give
+    # the same merged walls, shifted (the same-line test used the offsets' difference,
+    # which at an angle grows with the distance from the origin)
+    walls = np.array([[0.0, 1.0], [np.radians(4.0), 1.02], [0.0, 1.03], [0.0, 2.0]])
+    extent = np.array([[0.0, 3.0], [0.5, 3.5], [5.0, 6.0], [0.0, 3.0]])
+    hits = np.array([30.0, 10.0, 12.0, 20.0])
+    kw = {"dist": 0.1, "angle": np.radians(6.0), "overlap_dist": 0.3}
+    kw["overlap_angle"] = np.radians(12.0)
+    w0, e0, h0 = merge_walls(walls, extent, hits, **kw)
+    v = np.array(shift)
+    n = np.stack([np.cos(walls[:, 0]), np.sin(walls[:, 0])], -1)
+    tang = np.stack([-n[:, 1], n[:, 0]], -1)
+    moved = np.column_stack([walls[:, 0], walls[:, 1] + n @ v])
+    w1, e1, h1 = merge_walls(moved, extent + (tang @ v)[:, None], hits, **kw)
+    np.testing.assert_array_equal(h1, h0)
+    n0 = np.stack([np.cos(w0[:, 0]), np.sin(w0[:, 0])], -1)
+    np.testing.assert_allclose(w1[:, 0], w0[:, 0], atol=1e-9)
+    np.testing.assert_allclose(w1[:, 1], w0[:, 1] + n0 @ v, atol=1e-9)
+    t0 = np.stack([-n0[:, 1], n0[:, 0]], -1)
+    np.testing.assert_allclose(e1, e0 + (t0 @ v)[:, None], atol=1e-9)
+    assert len(w0) == 2  # the three copies of x = 1 are one face; x = 2 stays
+
+
 def test_duplicate_landmarks_merge_into_one_and_distinct_ones_stay() -> None:
     kinds = np.array([WALL, WALL, WALL, POINT, CORNER, POINT])
     states = np.array(
@@ -186,3 +214,37 @@ def test_refit_gives_a_mislabelled_landmark_its_kind_back() -> None:
     # seen from one stop only, nothing changes (one view cannot tell the kinds apart)
     k1, st1 = sm.refit_kinds(wrong_kinds, wrong, lm, z, at, np.array([1, 1]))
     assert k1.tolist() == wrong_kinds.tolist() and np.array_equal(st1, wrong)
+
+
+def test_a_merged_group_is_not_absorbed_again_by_a_weaker_landmark() -> None:
+    # a corner (30 pairs) absorbs the point 0.15 m away (29); the point 0.2 m from the
+    # corner (5) is not within reach of it and must not take the merged group over (it did:
+    # the survivor was tested again against it with its summed support)
+    kinds = np.array([CORNER, POINT, POINT])
+    states = np.array([[0.0, 0.0], [0.15, 0.0], [0.2, 0.0]])
+    k, s = merge_duplicates(
+        kinds,
+        states,
+        np.array([30.0, 29.0, 5.0]),
+        wall_dist=0.0,
+        wall_angle=0.1,
+        point_dist=0.15,
+    )
+    assert k.tolist() == [CORNER, POINT]
+    np.testing.assert_allclose(s[1], [0.2, 0.0])
+
+
+@pytest.mark.parametrize(
+    "kw", [{"kind_switch_ratio": 1.5}, {"kind_switch_ratio": 0.0}, {"merge_dist": -0.1}]
+)
+def test_smoother_config_rejects_settings_that_cannot_work(kw) -> None:
+    with pytest.raises(ValueError):
+        SmootherConfig(**kw)
+
+
+@pytest.mark.parametrize("k", [0, -1, 2.5, True])
+def test_slam_config_rejects_a_bad_hypothesis_count(k) -> None:
+    from fusion_center.mapping.rbpf import SlamConfig
+
+    with pytest.raises(ValueError):
+        SlamConfig(relocalise_hypotheses=k)

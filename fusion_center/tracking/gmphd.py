@@ -276,6 +276,16 @@ class GmPhdConfig:
     occluded_factor: float = 0.2
 
     def __post_init__(self) -> None:
+        # NaN fails every comparison: claim_time NaN silently switched claiming off, an
+        # infinite relink_time kept every fading label and let histories jump the hall
+        if not self.claim_time >= 0.0:
+            raise ValueError(f"claim_time must be >= 0 (inf: always), got {self.claim_time}")
+        for name in ("relink_time", "duplicate_window"):
+            value = getattr(self, name)
+            if not 0.0 <= value < math.inf:
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
+        if self.duplicate_steps < 0:
+            raise ValueError(f"duplicate_steps must be >= 0, got {self.duplicate_steps}")
         for name in ("detection_range_bins", "detection_angle_bins"):
             edges = np.asarray(getattr(self, name), float)
             if edges.size and (np.any(edges <= 0.0) or np.any(np.diff(edges) <= 0.0)):
@@ -1444,12 +1454,23 @@ class GmPhdTracker(Tracker):
                 # person's re-birth
                 gap = np.linalg.norm(xy[:, None, :] - m[conf][None, :, ::2], axis=2)
                 d[gap.min(axis=1) < cfg.reid_radius] = math.inf
-            for k, i in enumerate(new):  # nearest wins; each history is handed on once
-                j = int(np.argmin(d[k]))
-                if d[k, j] < math.inf:
-                    _, _, _, h, st = fading.pop(cand[j])
+            taken_new = np.zeros(d.shape[0], bool)
+            taken_cand = np.zeros(d.shape[1], bool)
+            # nearest pair first over all new labels and histories; each handed on once
+            flat = np.argsort(d, axis=None)
+            for f, dist in zip(flat.tolist(), d.ravel()[flat].tolist(), strict=True):
+                if dist == math.inf:
+                    break
+                k, j = divmod(f, d.shape[1])
+                if not (taken_new[k] or taken_cand[j]):
+                    taken_new[k] = taken_cand[j] = True
+                    i = new[k]
+                    src = cand[j]
+                    _, _, _, h, st = fading.pop(src)
                     self._hits[lab[i]], self._strong_time[lab[i]] = h, st
-                    d[:, j] = math.inf
+                    # moved, not copied: the weak source label starts again from nothing
+                    # (with a copy both labels reached confirmation on one person)
+                    self._hits[src], self._strong_time[src] = 0, 0.0
         for lb in confirmed:
             fading.pop(lb, None)
         for i in np.flatnonzero(strong).tolist():
@@ -1540,18 +1561,37 @@ class GmPhdTracker(Tracker):
                 srt = np.argsort(keys)
                 keys, n, mean = keys[srt], n[srt], mean[srt]
         self._dup_gap = (keys, n, mean)
-        for key in keys[n >= cfg.duplicate_steps].tolist():
-            a, b = key >> 32, key & 0xFFFFFFFF
-            mix.label[mix.label == b] = a
-            self._confirmed.discard(b)
-            self._hits.pop(b, None)
-            self._strong_time.pop(b, None)
+        self._fold_pairs(
+            [(k >> 32, k & 0xFFFFFFFF) for k in keys[n >= cfg.duplicate_steps].tolist()]
+        )
+
+    def _fold_pairs(self, pairs: list[tuple[int, int]]) -> None:
+        """Fold each pair ``(older, younger)`` of labels into one: the older label, unless
+        only the younger is confirmed (its id is the one users see: keeping the older one was
+        an id switch). A label folded earlier in the list stands for the one it went into
+        (three heads in a row gave pairs (1, 2) and (2, 3): 2 came back on 3's components)."""
+        mix = self._mix
+        into: dict[int, int] = {}
+        for a, b in pairs:
+            while a in into:
+                a = into[a]
+            while b in into:
+                b = into[b]
+            if a == b:
+                continue
+            keep, drop = min(a, b), max(a, b)
+            if drop in self._confirmed and keep not in self._confirmed:
+                keep, drop = drop, keep
+            mix.label[mix.label == drop] = keep
+            into[drop] = keep
+            self._confirmed.discard(drop)
+            self._hits.pop(drop, None)
+            self._strong_time.pop(drop, None)
 
     def _count_duplicates(self, pairs: list[tuple[int, int]] | list[list[int]] | None) -> None:
         """Count each pair of labels ``pairs`` found close this step and fold those close for
         ``duplicate_steps`` (``None``: fewer than two labels, every count is reset)."""
         cfg = self.config
-        mix = self._mix
         if pairs is None:
             self._dup_count.clear()
             return
@@ -1562,12 +1602,7 @@ class GmPhdTracker(Tracker):
             a, b = sorted(pair)
             counts[(a, b)] = self._dup_count.get((a, b), 0) + 1
         self._dup_count = counts
-        for (a, b), n in counts.items():
-            if n >= cfg.duplicate_steps:
-                mix.label[mix.label == b] = a
-                self._confirmed.discard(b)
-                self._hits.pop(b, None)
-                self._strong_time.pop(b, None)
+        self._fold_pairs([pair for pair, n in counts.items() if n >= cfg.duplicate_steps])
 
     def _label_heads(self, mix: _Mixture) -> tuple[npt.NDArray[np.intp], FloatArray]:
         """Each label's heaviest component (ascending label order) and summed weight, after

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from fusion_center.tracking.gmphd import GmPhdTracker, _Mixture
 
@@ -39,9 +40,11 @@ def _first_report(seed: int, relink_time: float) -> float:
 def test_a_person_seen_in_bursts_is_confirmed_sooner_with_relinking() -> None:
     relinked = [_first_report(seed, 0.5) for seed in range(6)]
     alone = [_first_report(seed, 0.0) for seed in range(6)]
-    # Measured: 9.3 s against 13.4 s summed over the six seeds.
+    # Measured: 9.7 s against 14.4 s summed over the six seeds. Since the history is moved,
+    # not copied (the source label starts again: with a copy both labels were confirmed on
+    # one person), one seed is 0.16 s later than without relinking.
     assert sum(relinked) < 0.85 * sum(alone), (relinked, alone)
-    assert all(a <= b + 0.1 for a, b in zip(relinked, alone, strict=True)), (relinked, alone)
+    assert all(a <= b + 0.2 for a, b in zip(relinked, alone, strict=True)), (relinked, alone)
 
 
 def _two_heads(tracker: GmPhdTracker, a: np.ndarray, b: np.ndarray) -> None:
@@ -120,3 +123,40 @@ def test_a_dead_track_does_not_claim_the_measurements_of_a_person_entering() -> 
     # person is reported after about confirm_time; a track that claims for ever hides it
     assert _entering_after_a_death(0.5) < 1.0
     assert _entering_after_a_death(float("inf")) > _entering_after_a_death(0.5) + 0.5
+
+
+def test_a_relinked_history_is_moved_not_copied() -> None:
+    # label 1 strong for a while, weak for a step, and a new label 2 beside it: 2 takes the
+    # history over and 1 starts again (with a copy, both were confirmed on one person)
+    tracker = GmPhdTracker(dataclasses.replace(CONFIG, relink_time=0.5))
+    tracker._hits[1], tracker._strong_time[1] = 9, 0.4
+    tracker._fading[1] = (1.0, 2.0, 3.0, 10, 0.4)
+    m = np.array([[2.0, 0.0, 3.0, 0.0], [2.1, 0.0, 3.0, 0.0]])
+    tracker._relink(1.02, m, np.array([1, 2]), np.array([False, True]))
+    assert (tracker._hits[2], tracker._strong_time[2]) == (10, 0.4)
+    assert (tracker._hits[1], tracker._strong_time[1]) == (0, 0.0)
+
+
+def test_folding_keeps_the_confirmed_id_and_follows_chains() -> None:
+    tracker = GmPhdTracker(CONFIG)
+    P = np.broadcast_to(np.eye(4) * 0.04, (3, 4, 4)).copy()
+    m = np.array([[0.0, 0, 0, 0], [0.25, 0, 0, 0], [0.5, 0, 0, 0]])
+    tracker._mix = _Mixture(np.array([0.9, 0.8, 0.7]), m, P, np.array([1, 2, 3]))
+    tracker._confirmed = {2}
+    # pairs (1, 2) and (2, 3): all three are one person; 2 is the id users see
+    tracker._fold_pairs([(1, 2), (2, 3)])
+    assert tracker._mix.label.tolist() == [2, 2, 2]
+    assert tracker._confirmed == {2}
+
+
+def test_config_rejects_times_that_switch_the_rules_off_silently() -> None:
+    for kw in (
+        {"claim_time": float("nan")},
+        {"claim_time": -1.0},
+        {"relink_time": float("inf")},
+        {"duplicate_window": -1.0},
+        {"duplicate_steps": -3},
+    ):
+        with pytest.raises(ValueError):
+            dataclasses.replace(CONFIG, **kw)
+    dataclasses.replace(CONFIG, claim_time=float("inf"))  # always claims: allowed

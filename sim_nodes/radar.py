@@ -262,8 +262,17 @@ class MSequenceRadar:
         -------
         ndarray, complex64, shape (..., n_bins)
         """
+        lo, hi = self._phase_factors(np.asarray(delays, float), np.asarray(amplitudes, np.float32))
+        out = hi @ np.swapaxes(lo, -1, -2)  # (..., M, L): bin k = L m + l
+        return out.reshape(*out.shape[:-2], -1)[..., : self.n_bins]
+
+    def _phase_factors(
+        self, delays: npt.NDArray[np.float64], amplitudes: npt.NDArray[np.float32]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The factors of :meth:`path_spectrum`: ``w^l`` (l < L), shape (..., L, P), and
+        ``a_i (w^L)^m`` (m < M), shape (..., M, P), complex64, elementwise over the paths."""
         cfg = self.config
-        cycles = (np.asarray(delays, float) - cfg.t0) * (cfg.fs / cfg.n)  # (..., P)
+        cycles = (delays - cfg.t0) * (cfg.fs / cfg.n)  # (..., P)
         # Phase cycles of w^l (l < L) and of (w^L)^m (m < M), stacked on one axis.
         turns = cycles[..., None, :] * self._block_index[:, None]  # (..., L + M, P)
         turns -= np.rint(turns)
@@ -271,10 +280,7 @@ class MSequenceRadar:
         w = np.empty(phase.shape, np.complex64)
         w.real = np.cos(phase)
         w.imag = np.sin(phase)
-        lo = w[..., : self._n_lo, :]
-        hi = w[..., self._n_lo :, :] * np.asarray(amplitudes, np.float32)[..., None, :]
-        out = hi @ np.swapaxes(lo, -1, -2)  # (..., M, L): bin k = L m + l
-        return out.reshape(*out.shape[:-2], -1)[..., : self.n_bins]
+        return w[..., : self._n_lo, :], w[..., self._n_lo :, :] * amplitudes[..., None, :]
 
     def path_spectra(self, paths: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
         """:meth:`path_spectrum` of several acquisitions at once: ``out[i]`` is bit for bit
@@ -295,19 +301,10 @@ class MSequenceRadar:
         """
         if not paths:
             return []
-        cfg = self.config
         delays = np.concatenate([np.asarray(d, float) for d, _ in paths], axis=-1)
         amps = np.concatenate([np.asarray(a, np.float32) for _, a in paths], axis=-1)
-        # the steps of path_spectrum, elementwise over all paths
-        cycles = (delays - cfg.t0) * (cfg.fs / cfg.n)
-        turns = cycles[..., None, :] * self._block_index[:, None]
-        turns -= np.rint(turns)
-        phase = (turns * (-2 * np.pi)).astype(np.float32)
-        w = np.empty(phase.shape, np.complex64)
-        w.real = np.cos(phase)
-        w.imag = np.sin(phase)
-        lo = w[..., : self._n_lo, :]
-        hi = w[..., self._n_lo :, :] * amps[..., None, :]
+        # the factors of path_spectrum, elementwise over all paths side by side
+        lo, hi = self._phase_factors(delays, amps)
         out = []
         end = 0
         for d, _ in paths:

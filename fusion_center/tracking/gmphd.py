@@ -318,6 +318,16 @@ class _Mixture:
         )
 
 
+def _by_label(w: FloatArray, label: IntArray) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
+    """Component order by label, then by decreasing weight, and the mask (in that order) of
+    each label's first, i.e. heaviest, component."""
+    order = np.lexsort((-w, label))
+    lab = label[order]
+    first = np.ones(lab.size, dtype=bool)
+    first[1:] = lab[1:] != lab[:-1]
+    return order, first
+
+
 def merge_components(
     w: FloatArray,
     m: FloatArray,
@@ -1497,10 +1507,7 @@ class GmPhdTracker(Tracker):
             )
             self._count_duplicates(pairs.tolist() if pairs.shape[1] == 2 else None)
             return
-        order = np.lexsort((-mix.w, mix.label))
-        lab = mix.label[order]
-        first = np.ones(lab.size, dtype=bool)
-        first[1:] = lab[1:] != lab[:-1]
+        order, first = _by_label(mix.w, mix.label)
         heads = order[first]
         heads = heads[mix.w[heads] > 0.05]
         labels = mix.label[heads]
@@ -1533,10 +1540,7 @@ class GmPhdTracker(Tracker):
         n = np.zeros(0, dtype=np.int64)
         mean = np.zeros((0, 4))
         if mix.w.size >= 2 and cfg.duplicate_steps > 0:
-            order = np.lexsort((-mix.w, mix.label))
-            lab = mix.label[order]
-            first = np.ones(lab.size, dtype=bool)
-            first[1:] = lab[1:] != lab[:-1]
+            order, first = _by_label(mix.w, mix.label)
             heads = order[first]
             heads = heads[mix.w[heads] > 0.05]
             labels = mix.label[heads]
@@ -1608,16 +1612,12 @@ class GmPhdTracker(Tracker):
         """Each label's heaviest component (ascending label order) and summed weight, after
         giving a second heavy component of a label, away from its head, a fresh label."""
         cfg = self.config
-        # Sort by label, then by decreasing weight: the first of each label is its heaviest.
-        order = np.lexsort((-mix.w, mix.label))
-        lab = mix.label[order]
-        first = np.ones(lab.size, dtype=bool)
-        first[1:] = lab[1:] != lab[:-1]
+        order, first = _by_label(mix.w, mix.label)
         # A second heavy component of one label is another target: give it a fresh label.
         dup = ~first & (mix.w[order] >= cfg.split_threshold)
         if dup.any():
             # ... unless it sits on the head of its label (it differs in velocity only).
-            head_of = order[np.maximum.accumulate(np.where(first, np.arange(lab.size), 0))]
+            head_of = order[np.maximum.accumulate(np.where(first, np.arange(first.size), 0))]
             cand, head = order[dup], head_of[dup]
             dp = mix.m[cand][:, ::2] - mix.m[head][:, ::2]
             Ph = mix.P[head][:, ::2, ::2]
@@ -1628,10 +1628,7 @@ class GmPhdTracker(Tracker):
             idx = order[dup]
             mix.label[idx] = np.arange(self._next_label, self._next_label + n_dup)
             self._next_label += n_dup
-            order = np.lexsort((-mix.w, mix.label))
-            lab = mix.label[order]
-            first = np.ones(lab.size, dtype=bool)
-            first[1:] = lab[1:] != lab[:-1]
+            order, first = _by_label(mix.w, mix.label)
         starts = np.flatnonzero(first)
         label_w = np.add.reduceat(mix.w[order], starts)
         heads = order[starts]

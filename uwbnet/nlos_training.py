@@ -80,12 +80,16 @@ def make_dataset(
     classes: Sequence[tuple[ChannelClass, bool]] = TRAIN_CLASSES,
     snr_db: tuple[float, float] = (12.0, 40.0),
     first_fraction: tuple[float, float] = (0.2, 0.6),
+    decay_factor: tuple[float, float] | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """Features (m, len(FEATURES)) and NLOS labels (m,) of seeded simulated channels.
 
     Each of ``n_per_class`` draws per (class, radar) gets its own SNR (uniform in dB) and
     first-path position (uniform over ``first_fraction`` of the window: the middle by
     default; a DW1000 accumulator of 1016 taps puts its first path near tap 745, 0.73).
+    With ``decay_factor`` each channel's environment gets its decay constants and ray rate
+    scaled by a factor drawn log-uniformly from that range (:func:`_perturbed`: another
+    building of the same kind); without it the draws are those of earlier versions.
     """
     rng = np.random.default_rng(seed)
     xs, ys = [], []
@@ -94,7 +98,11 @@ def make_dataset(
         for env, nlos in classes:
             rows = []
             for _ in range(n_per_class):  # one channel realisation each: a few hundred paths
-                delays, amps = draw_channel(env, rng)
+                e = env
+                if decay_factor is not None:
+                    lo, hi = np.log(decay_factor)
+                    e = _perturbed(env, float(np.exp(rng.uniform(lo, hi))))
+                delays, amps = draw_channel(e, rng)
                 first = rng.uniform(*first_fraction) * radar.n
                 rows.append(
                     render(
@@ -128,8 +136,10 @@ CLIP = {
     "rms_delay_spread": (0.0, 60.0),
     "fp_energy_db": (-30.0, 0.0),
     "kurtosis": (1.0, 60.0),
+    "early_energy_db": (-30.0, 0.0),
+    "median_excess_delay": (0.0, 80.0),
 }
-"""Physical ranges the features are clipped to (dB, ns, ns, ns, dB, -)."""
+"""Physical ranges the features are clipped to (dB, ns, ns, ns, dB, -, dB, ns)."""
 
 
 def fit_logistic(

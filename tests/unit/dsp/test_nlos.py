@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node_agent.dsp.nlos import DEFAULT_CLASSIFIER, FEATURES, LogisticNlosClassifier
+from node_agent.dsp.nlos import (
+    DEFAULT_CLASSIFIER,
+    DEFAULT_MODEL_VERSION,
+    FEATURES,
+    MODEL_FORMAT,
+    LogisticNlosClassifier,
+    classifier_from_dict,
+    load_classifier,
+)
 from node_agent.dsp.ranging import FirstPathRanger
 from uwbnet.nlos_training import (
     HELD_OUT_CLASSES,
@@ -93,3 +101,39 @@ def test_classifier_rejects_inconsistent_coefficients() -> None:
             bias=0.0,
             clip=((0.0, 1.0),),
         )
+
+
+def test_early_energy_and_median_delay_of_an_obstructed_first_path(
+    rng: np.random.Generator,
+) -> None:
+    f = _features(DW1000, [0.0, 8e-9, 14e-9], [0.25, 1.0, 0.6], rng)
+    # up to 10 ns: the first path and the 8 ns path, of (0.0625 + 1) / (0.0625 + 1 + 0.36)
+    assert np.median(f[:, COL["early_energy_db"]]) == pytest.approx(-1.27, abs=0.5)
+    assert np.median(f[:, COL["median_excess_delay"]]) == pytest.approx(8.0, abs=1.0)  # ns
+    los = _features(DW1000, [0.0], [1.0], rng)
+    assert np.all(los[:, COL["early_energy_db"]] > -0.5)
+    assert np.all(los[:, COL["median_excess_delay"]] < 1.5)
+
+
+def test_packaged_model_is_versioned_and_checked() -> None:
+    clf, version = load_classifier()
+    assert clf == DEFAULT_CLASSIFIER
+    assert version == DEFAULT_MODEL_VERSION >= 1
+    d = {
+        "format": MODEL_FORMAT,
+        "version": 7,
+        "kind": "logistic",
+        "features": ["rise_time"],
+        "mean": [1.0],
+        "scale": [2.0],
+        "weights": [0.5],
+        "bias": -1.0,
+        "clip": [[0.0, 60.0]],
+    }
+    assert classifier_from_dict(d).weights == (0.5,)
+    with pytest.raises(ValueError, match="format"):
+        classifier_from_dict({**d, "format": MODEL_FORMAT + 1})
+    with pytest.raises(ValueError, match="kind"):
+        classifier_from_dict({**d, "kind": "forest"})
+    with pytest.raises(ValueError, match="lacks"):
+        classifier_from_dict({k: v for k, v in d.items() if k != "bias"})

@@ -153,8 +153,8 @@ class GmPhdConfig:
         a second (a person at a far wall, inside one sensor's blind zone), and every hall
         seed counted better with 0.5-1.0 s (mean of 12 proxies 87.7 -> 88.4 %, foyer3
         unchanged; docs/integration.md). A label whose components were all pruned is not
-        coasted: coasting those too put a second track on people whose label was merged
-        into another.
+        coasted: coasting those too (at their last state, predicted) lowered the mean count
+        and cost foyer3 an ID switch per seed.
     adapt_detection : bool
         Learn each sensor's ``p_D`` online (beyond the chapter, which assumes it known): the
         fraction of established tracks (label weight > 0.5) in the sensor's view that had a

@@ -79,6 +79,38 @@ def test_target_outside_view_keeps_weight(rng: np.random.Generator) -> None:
     assert later[-1].tracks[0].w == pytest.approx(w_before, rel=0.02)
 
 
+def test_confirmed_track_below_keep_is_coasted_for_coast_time(rng: np.random.Generator) -> None:
+    """A confirmed track whose weight fell below ``keep_threshold`` (no sensor sees it now, so
+    it keeps that weight) is reported for ``coast_time`` (0.5 s since stop 21), then not."""
+    looking = Sensor(
+        name="a",
+        origin=np.array([0.0, 0.0]),
+        boresight=math.pi / 4,
+        beamwidth=math.radians(100),
+        max_range=12.0,
+    )
+    away = Sensor(
+        name="b",
+        origin=np.array([10.0, 0.0]),
+        boresight=0.0,
+        beamwidth=math.radians(100),
+        max_range=12.0,
+    )
+    still = np.tile(np.array([[3.0, 3.0]]), (50, 1, 1))
+    tracker, outputs = run_tracker(rng, still, [looking])
+    (track,) = outputs[-1].tracks
+    assert tracker.config.coast_time == 0.5
+    tracker._mix.w *= 0.3 / tracker._mix.w[tracker._mix.label == track.id].sum()
+    t0 = outputs[-1].t
+    reported = {}
+    for k in range(1, 40):
+        t = t0 + k * FRAME
+        out = tracker.step(t, [detect(rng, away, t, still[0][:0], clutter=0.0)])
+        reported[round(k * FRAME, 3)] = [tr.id for tr in out.tracks]
+    assert all(ids == [track.id] for dt, ids in reported.items() if dt <= 0.46), reported
+    assert all(ids == [] for dt, ids in reported.items() if dt >= 0.54), reported
+
+
 def test_new_target_born_within_half_a_second(rng: np.random.Generator) -> None:
     times, X = crossing_truth(4.0)
     alive = np.ones(X.shape[:2], dtype=bool)

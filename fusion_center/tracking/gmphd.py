@@ -585,10 +585,11 @@ def fuse_estimates(
         # each sensor's estimates, in index order (a stable sort keeps it within a sensor)
         order = np.argsort(owner, kind="stable")
         _, first, count = np.unique(owner[order], return_index=True, return_counts=True)
-        for i, k in zip(first.tolist(), count.tolist(), strict=True):
+        # a sensor with nothing in any gate is skipped (the assignment would keep nothing):
+        # found for all sensors at once, most of a frame's sensors see no one
+        in_gate = np.logical_or.reduceat(gated[order], first)
+        for i, k in zip(first[in_gate].tolist(), count[in_gate].tolist(), strict=True):
             cols = order[i : i + k]
-            if not gated[cols].any():
-                continue  # nothing in any gate: the assignment would keep nothing
             if k == 1:
                 # one estimate: the assignment is the nearest track
                 col = int(cols[0])

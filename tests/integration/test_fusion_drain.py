@@ -37,8 +37,9 @@ def test_a_burst_of_detections_is_fused_and_bad_messages_are_counted(hub_endpoin
     infos = node_infos(4)
     frames = 40
     start, velocity = np.array([[5.0, 4.0]]), np.array([[0.5, 0.0]])
+    # acquired during the last second (0.8 s of frames), published now as one burst
     payloads = synthetic_detections(
-        infos, frames, start, velocity, t0=time.time(), rng=np.random.default_rng(3)
+        infos, frames, start, velocity, t0=time.time() - 1.0, rng=np.random.default_rng(3)
     )
     with contextlib.ExitStack() as stack:
         fs = stack.enter_context(zenoh.open(session_config(listen=[hub_endpoint])))

@@ -2,7 +2,11 @@
 
 Holds the TDMA schedule (published on change and served by a queryable), follows node presence
 through liveliness tokens, fetches ``node_info`` from the nodes' queryables, and publishes
-``tracks`` after every processed frame. Callbacks only enqueue; one worker thread does the rest.
+``tracks`` after every processed frame. One worker thread does the work: ``detections``,
+``node_info`` and ``status`` samples wait in zenoh's own channels (no Python callback per
+message) and the worker takes all that arrived at each of its wake-ups, every ``poll_period``
+(docs/capacity.md, "Ninth round, hub side"); the rare control inputs (liveliness, replies of
+``node_info`` queries) come through callbacks that only enqueue.
 """
 
 from __future__ import annotations
@@ -56,6 +60,11 @@ class FusionConfig:
     method : tracking method, ``gmphd`` or ``image``.
     frame_period : TDMA frame period, s (50 impulse responses per second per transmitter).
     flush_after : a frame is processed at the latest this long (s) after its last detection.
+    poll_period : the worker wakes this often (s) and takes every sample that arrived since
+        (zenoh's channels, drained without a Python callback or a thread wake-up per message).
+        Adds up to this much latency; 5 ms is a quarter of a TDMA frame.
+    channel_capacity : samples a zenoh channel holds for the worker; when it is full (the
+        worker that far behind) zenoh holds back the sender's link instead of losing them.
     core : frame assembly parameters.
     localization : localization of mobile nodes from their ranging rounds (``poses``).
     imaging : live imaging of the nodes' ``ir`` (off unless ``imaging.rate > 0``), in its own
@@ -73,6 +82,8 @@ class FusionConfig:
     method: str = "gmphd"
     frame_period: float = 0.02
     flush_after: float = 0.05
+    poll_period: float = 0.005
+    channel_capacity: int = 8192
     core: FusionCoreConfig = dataclasses.field(default_factory=FusionCoreConfig)
     localization: LocalizerConfig = dataclasses.field(default_factory=LocalizerConfig)
     imaging: LiveImagingConfig = dataclasses.field(default_factory=LiveImagingConfig)
@@ -80,6 +91,12 @@ class FusionConfig:
     schedule: bool = True
     track: bool = True
     tracks_key: str | None = None
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.poll_period <= 1.0):
+            raise ValueError(f"poll_period must be in (0, 1] s, not {self.poll_period}")
+        if self.channel_capacity < 1:
+            raise ValueError(f"channel_capacity must be >= 1, not {self.channel_capacity}")
 
 
 @dataclasses.dataclass(slots=True)
@@ -109,7 +126,12 @@ class FusionService:
         self.pose_core = PoseCore(config.localization)
         self.latest_poses: dict[str, PoseResult] = {}
         self.epoch = clock() if epoch is None else epoch
+        #: Control inputs (liveliness changes, ``node_info`` replies): callbacks enqueue here.
         self._inbox: FifoChannel[tuple[str, str, bytes]] = FifoChannel(8192)
+        #: (leaf, subscriber with a zenoh channel) drained by the worker, ``info`` first.
+        self._channels: list[tuple[str, Any]] = []
+        #: Detections per node since the last health update: [count, latest t].
+        self._det_batch: dict[str, list[Any]] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._decl: list[Any] = []
@@ -158,19 +180,19 @@ class FusionService:
         if cfg.nodes is not None:
             # A cell worker: its nodes' frames are complete when all of them reported.
             self.core.expected = frozenset(cfg.nodes)
-        leaves = ("det", "info", "status") if cfg.track else ("info", "status")
+        leaves = ("info", "status", "det") if cfg.track else ("info", "status")
         for leaf in leaves:
             if cfg.nodes is None:
                 exprs = [keys.all_nodes_key(net, leaf)]
             else:
                 exprs = [keys.node_key(net, node, leaf) for node in cfg.nodes]
             for expr in exprs:
-                self._decl.append(
-                    s.declare_subscriber(
-                        expr,
-                        lambda sample, leaf=leaf: put((leaf, str(sample.key_expr), _bytes(sample))),
-                    )
-                )
+                # zenoh's channel: its network thread queues the sample without Python's lock
+                # and the worker takes them in batches; a Python callback costs a thread
+                # wake-up, the lock and a queue per message (docs/capacity.md, ninth round)
+                sub = s.declare_subscriber(expr, zenoh.handlers.FifoChannel(cfg.channel_capacity))
+                self._decl.append(sub)
+                self._channels.append((leaf, sub))
         self._decl.append(
             s.liveliness().declare_subscriber(
                 keys.all_alive_key(net),
@@ -272,27 +294,71 @@ class FusionService:
     # -- worker ----------------------------------------------------------------------------
 
     def _run(self) -> None:
-        last_item = time.monotonic()
+        period, flush_after = self.config.poll_period, self.config.flush_after
+        last_item = next_wake = time.monotonic()
         while not self._stop.is_set():
-            item = self._inbox.get(timeout=self.config.flush_after)
-            if item is None:
-                if time.monotonic() - last_item >= self.config.flush_after:
-                    self._publish(self.core.flush())
-                self._fetch_infos()
-                continue
-            last_item = time.monotonic()
-            leaf, key, payload = item
-            try:
-                self._handle(leaf, key, payload)
-            except ProtocolError as exc:
-                self.decode_errors += 1
-                log.warning("rejected %s: %s", key, exc)
-            except Exception:  # a bug must cost one message, not the fusion thread
-                self.handler_errors += 1
-                log.exception("failed on %s", key)
+            taken = self._drain()
+            now = time.monotonic()
+            if taken:
+                last_item = now
+            elif now - last_item >= flush_after:
+                self._publish(self.core.flush())
+                last_item = now
             self._fetch_infos()
+            next_wake = max(next_wake + period, now)
+            delay = next_wake - time.monotonic()
+            if delay > 0.0:
+                time.sleep(delay)
 
-    def _handle(self, leaf: str, key: str, payload: bytes) -> None:
+    def _drain(self) -> int:
+        """Handle every input that arrived since the last wake-up; how many there were."""
+        taken = 0
+        if len(self._inbox):
+            for leaf, key, payload in self._inbox.drain():
+                taken += 1
+                self._guarded(leaf, key, payload)
+        # at most a full channel's worth per leaf, so that a flood cannot starve the rest
+        limit = self.config.channel_capacity
+        for leaf, sub in self._channels:
+            for _ in range(limit):
+                sample = sub.try_recv()
+                if sample is None:
+                    break
+                taken += 1
+                self._guarded(leaf, sample, None)
+        if self._det_batch:
+            self._note_detections()
+        return taken
+
+    def _guarded(self, leaf: str, key: Any, payload: bytes | None) -> None:
+        """``_handle`` one input (a zenoh sample when ``payload`` is None), counting and
+        logging what it rejects or fails on."""
+        try:
+            if payload is None:
+                payload = key.payload.to_bytes()
+            self._handle(leaf, key, payload)
+        except ProtocolError as exc:
+            self.decode_errors += 1
+            log.warning("rejected %s: %s", _key(key), exc)
+        except Exception:  # a bug must cost one message, not the fusion thread
+            self.handler_errors += 1
+            log.exception("failed on %s", _key(key))
+
+    def _note_detections(self) -> None:
+        """Node health from the detections of one wake-up: counts, latest ``t`` and the
+        latency (s since acquisition when the batch was handled, ms)."""
+        batch, self._det_batch = self._det_batch, {}
+        now = self.clock()
+        with self._lock:
+            for src, (count, t) in batch.items():
+                h = self.health.get(src)
+                if h is None:
+                    h = self.health[src] = NodeHealth()
+                h.detections += count
+                h.last_det_t = t
+                h.latency_ms = (now - t) * 1e3
+
+    def _handle(self, leaf: str, key: Any, payload: bytes) -> None:
         if leaf == "alive":
             self._on_alive(key, payload.decode())
             return
@@ -300,11 +366,12 @@ class FusionService:
         if leaf == "det" and isinstance(msg, Detections):
             if msg.src not in self.core.nodes:
                 self._want_info.add(msg.src)
-            with self._lock:
-                h = self.health.setdefault(msg.src, NodeHealth())
-                h.detections += 1
-                h.last_det_t = msg.t
-                h.latency_ms = (self.clock() - msg.t) * 1e3
+            seen = self._det_batch.get(msg.src)
+            if seen is None:
+                self._det_batch[msg.src] = [1, msg.t]
+            else:
+                seen[0] += 1
+                seen[1] = msg.t
             if msg.links is not None:
                 self._publish_pose(self.pose_core.add_ranging(msg))
                 # anchors ranged before their description arrived: ask their queryables
@@ -319,7 +386,7 @@ class FusionService:
             with self._lock:
                 self.health.setdefault(msg.src, NodeHealth()).last_status = msg
         else:
-            raise ProtocolError(f"kind {msg.KIND!r} on {key}")
+            raise ProtocolError(f"kind {msg.KIND!r} on {_key(key)}")
 
     def _on_alive(self, key: str, kind: str) -> None:
         try:
@@ -468,3 +535,8 @@ def tracks_message(out: TrackerOutput, *, src: str, seq: int) -> Tracks:
 
 def _bytes(sample: zenoh.Sample) -> bytes:
     return sample.payload.to_bytes()
+
+
+def _key(key: Any) -> str:
+    """The key expression of an input: a string, or a zenoh sample's."""
+    return key if isinstance(key, str) else str(key.key_expr)

@@ -229,6 +229,14 @@ def bench_scale(seed: int = 1) -> dict[str, Any]:
     return {"bench": "scale", **run(seed=seed), **_machine()}
 
 
+def bench_hub(seed: int = 1) -> dict[str, Any]:
+    """The live hub's CPU per received ``detections`` message at 48 and 100 played nodes
+    (``uwbnet.bench_hub``)."""
+    from uwbnet.bench_hub import run
+
+    return {"bench": "hub", **run(seed=seed or 1), **_machine()}
+
+
 def bench_web(seed: int = 0) -> dict[str, Any]:
     """The live web view at 100 sensors / 30 tracks (``uwbnet/bench_web.py``)."""
     from uwbnet.bench_web import bench_web as run
@@ -242,6 +250,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "dsp": bench_dsp,
     "fuzz": bench_fuzz,
     "fusion": bench_fusion,
+    "hub": bench_hub,
     "localization": bench_localization,
     "imaging": bench_imaging,
     "scale": bench_scale,

@@ -650,6 +650,7 @@ BENCH_NAMES = (
     "dsp",
     "fusion",
     "fuzz",
+    "hub",
     "imaging",
     "localization",
     "objects",

@@ -756,3 +756,41 @@ def occluded(w, m, label, origins, mask, radius):  # pragma: no cover
                     out[j, s] = True
                     break
     return out
+
+
+@_njit("int64[:](float64[:, :], float64[:, :], float64[:, :], float64[:, :], float64)")
+def wall_crossings(origins, xy, start, end, margin):  # pragma: no cover
+    """Number of walls each sight line ``origins[k]`` -> ``xy[k]`` crosses
+    (``WallSightModel.pairs``): the same arithmetic per (line, wall) as the numpy reference
+    (:meth:`fusion_center.tracking.walls.WallSightModel.crossings`), so the same counts.
+
+    Parameters
+    ----------
+    origins, xy : ndarray, float64, shape (K, 2)
+        Ends of the sight lines, world x, y, m.
+    start, end : ndarray, float64, shape (W, 2)
+        Wall segments, m.
+    margin : float
+        A wall crossed within this fraction of the sight line's ends does not count.
+
+    Returns
+    -------
+    ndarray, int64, shape (K,)
+    """
+    n_k, n_w = xy.shape[0], start.shape[0]
+    out = np.zeros(n_k, dtype=np.int64)
+    upper = 1 - margin
+    for k in range(n_k):
+        ox, oy = origins[k, 0], origins[k, 1]
+        rx, ry = xy[k, 0] - ox, xy[k, 1] - oy
+        for i in range(n_w):
+            ex, ey = end[i, 0] - start[i, 0], end[i, 1] - start[i, 1]
+            wx, wy = start[i, 0] - ox, start[i, 1] - oy
+            den = rx * ey - ry * ex
+            if den == 0.0:
+                continue  # parallel: the reference's u and s are inf or nan, never a hit
+            u = (wx * ey - wy * ex) / den
+            s = (wx * ry - wy * rx) / den
+            if u > margin and u < upper and s >= 0.0 and s <= 1.0:
+                out[k] += 1
+    return out

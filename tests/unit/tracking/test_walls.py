@@ -84,3 +84,27 @@ def test_a_sensor_behind_a_wall_does_not_learn_that_it_misses_people() -> None:
     # learned detection probability; with them it is not evidence, and b keeps its prior.
     assert walled.min() > blind.min() + 0.1
     assert np.allclose(walled, walled.max())
+
+
+def test_compiled_pairs_count_the_walls_of_the_numpy_reference() -> None:
+    # a generated building's walls, and sight lines from random points, from points on the
+    # walls (sensors mounted there), along walls (parallel lines) and through wall ends
+    from uwbnet.scale_roles import building, wall_sight
+
+    model = wall_sight(building({"nodes": 24, "people": 2, "seed": 1}))
+    rng = np.random.default_rng(4)
+    k = 3000
+    o = np.column_stack([rng.uniform(-2.0, 62.0, k), rng.uniform(-1.0, 9.0, k)])
+    p = o + rng.normal(0.0, 8.0, (k, 2))
+    w = rng.integers(0, model.start.shape[0], k)
+    a = rng.uniform(0.0, 1.0, k)[:, None]
+    on_wall = model.start[w] + a * (model.end[w] - model.start[w])
+    o[: k // 4] = on_wall[: k // 4]  # mounted on a wall
+    along = model.start[w] + 2.0 * a * (model.end[w] - model.start[w])
+    p[k // 4 : k // 2] = along[k // 4 : k // 2]  # in line with a wall
+    p[k // 2 : 3 * k // 4] = model.end[w][k // 2 : 3 * k // 4]  # exactly at a wall's end
+    fast = model.pairs(o, p)
+    model.compiled = False
+    want = model.pairs(o, p)
+    np.testing.assert_array_equal(fast, want)
+    assert (want < 1.0).sum() > k // 10 and (want == 1.0).sum() > k // 10

@@ -150,9 +150,11 @@ class GmPhdConfig:
         predicted state, for this long (s), while its label is in the mixture: people near
         walls or shadowed may go unseen by every sensor for a few frames. 0.5 s (was 0.25,
         stop 21): on the outside proxies the sensors' misses come in runs of a few tenths of
-        a second (a person at a far wall, inside one sensor's blind zone), and every hall
-        seed counted better with 0.5-1.0 s (mean of 12 proxies 87.7 -> 88.4 %, foyer3
-        unchanged; docs/integration.md). A label whose components were all pruned is not
+        a second (a person at a far wall, inside one sensor's blind zone): at 0.5 s the mean
+        of the 12 proxies rose 87.7 -> 88.4 %, four hall seeds counted better, +100 the same,
+        +500 0.1 point worse, foyer3 unchanged (docs/integration.md). A lost track is reported
+        up to this long after the person left. Timed on elapsed time (a clock stepping back
+        does not prolong it). A label whose components were all pruned is not
         coasted: coasting those too (at their last state, predicted) lowered the mean count
         and cost foyer3 an ID switch per seed.
     adapt_detection : bool
@@ -286,7 +288,7 @@ class GmPhdConfig:
         # infinite relink_time kept every fading label and let histories jump the hall
         if not self.claim_time >= 0.0:
             raise ValueError(f"claim_time must be >= 0 (inf: always), got {self.claim_time}")
-        for name in ("relink_time", "duplicate_window"):
+        for name in ("relink_time", "duplicate_window", "coast_time"):
             value = getattr(self, name)
             if not 0.0 <= value < math.inf:
                 raise ValueError(f"{name} must be finite and >= 0, got {value}")
@@ -700,6 +702,10 @@ class GmPhdTracker(Tracker):
         self._t_frame: float | None = None
         self._t_miss: float | None = None
         self._t_extract: float | None = None
+        #: Elapsed time (s): the sum of the positive steps between extractions. Coasting and
+        #: claiming are timed on it, so a clock that steps back (a replay restarted without
+        #: ``reset``) neither freezes a coast nor lets a dead track claim until it catches up.
+        self._elapsed = 0.0
         self._confirmed: set[int] = set()
         self._confirmed_arr = np.zeros(0, dtype=np.int64)
         #: Confirmed labels that claim the measurements in their gate (see ``claim_time``).
@@ -1700,6 +1706,8 @@ class GmPhdTracker(Tracker):
             self._last_report = {}
             self._hits.clear()
             self._strong_time.clear()
+            if self._t_extract is not None:
+                self._elapsed += max(t - self._t_extract, 0.0)
             self._t_extract = t
             self._confirmed.clear()
             self._confirmed_arr = np.zeros(0, dtype=np.int64)
@@ -1723,6 +1731,8 @@ class GmPhdTracker(Tracker):
         hits, strong_time = {}, {}
         dt = 0.0 if self._t_extract is None else max(t - self._t_extract, 0.0)
         self._t_extract = t
+        self._elapsed += dt
+        now = self._elapsed
         if cfg.relink_time > 0.0:
             self._relink(t, mix.m[heads], labels, strong)
         for label, is_strong in zip(labels.tolist(), strong.tolist(), strict=True):
@@ -1735,6 +1745,8 @@ class GmPhdTracker(Tracker):
             # A track lost a moment ago that re-appears where it was is not a new person:
             # it is confirmed at once; any other new label waits for ``confirm_time``.
             old = self._reidentify(t, mix.m[heads[labels == lb][0]])
+            if old is not None and old in hits:
+                old = None  # still in the mixture under its own label: never two with one id
             if old is None and strong_time[lb] < cfg.confirm_time:
                 continue
             if old is not None:
@@ -1744,28 +1756,28 @@ class GmPhdTracker(Tracker):
                 strong_time[old] = strong_time.pop(lb)
                 lb = old
             confirmed.add(lb)
-            self._confirmed_t[lb] = t
+            self._confirmed_t[lb] = now
         self._confirmed = confirmed
         self._confirmed_arr = np.sort(np.fromiter(confirmed, dtype=np.int64, count=len(confirmed)))
 
         is_confirmed = np.fromiter((lb in confirmed for lb in labels.tolist()), bool)
         strong_now = label_w >= cfg.keep_threshold
-        seen = {lb: t for lb, ok in zip(labels.tolist(), strong_now.tolist(), strict=True) if ok}
+        seen = {lb: now for lb, ok in zip(labels.tolist(), strong_now.tolist(), strict=True) if ok}
         self._last_strong = {
             lb: seen.get(lb, self._last_strong.get(lb, -math.inf)) for lb in labels.tolist()
         }
         # Coast: a confirmed track stays reported (predicted) through short gaps in detection.
         coasting = np.fromiter(
-            (t - self._last_strong[lb] <= cfg.coast_time for lb in labels.tolist()), bool
+            (now - self._last_strong[lb] <= cfg.coast_time for lb in labels.tolist()), bool
         )
         report = is_confirmed & (strong_now | coasting)
         # (a re-identified track may be confirmed while below keep_threshold: its time counts
         # from the confirmation)
-        self._confirmed_t = {lb: self._confirmed_t.get(lb, t) for lb in confirmed}
+        self._confirmed_t = {lb: self._confirmed_t.get(lb, now) for lb in confirmed}
         claim = [
             lb
             for lb in labels[is_confirmed].tolist()
-            if t - max(self._last_strong[lb], self._confirmed_t[lb]) <= cfg.claim_time
+            if now - max(self._last_strong[lb], self._confirmed_t[lb]) <= cfg.claim_time
         ]
         self._claim_arr = np.sort(np.array(claim, dtype=np.int64))
         reported = labels[report].tolist()

@@ -36,15 +36,18 @@ COUNT_GOAL = 0.75
 FLOOR_OSPA = 0.60
 FLOOR_COUNT = 0.25
 # Configurations where a goal is not met yet, and why (issue 2 closing note). A listed
-# configuration that misses a goal is reported as xfail with its figures; one not listed fails.
-KNOWN_GAPS: dict[str, str] = {
+# configuration that misses a goal is reported as xfail with its figures, and fails if it
+# falls under its own floor (the count it reached) or meets the goal (the entry is stale);
+# one not listed fails. Value: (count floor, figures).
+KNOWN_GAPS: dict[str, tuple[float, str]] = {
     # The seed-22 and seed-122 halls meet the count goal (80.0 and 79.8 % with the stop-20
     # relinking, mean-gap folding and claim_time and the stop-21 coast_time 0.5 s;
     # docs/integration.md). Seed 422 does not, yet: people entering and leaving at a corner
     # inside one sensor's cropped-window blind zone and 9-20 m from the others, seen in a
     # tenth to a third of the frames.
     "hall20x12_6s_3to5p_complex_seed422": (
-        "count 69.2 % (66.7 % at stop 20, 65.4 % at stop 19, 56.9 % before)"
+        0.67,
+        "count 69.2 % (66.7 % at stop 20, 65.4 % at stop 19, 56.9 % before)",
     ),
 }
 
@@ -186,8 +189,11 @@ def test_outside_recording_meets_acceptance_goals(name: str, tmp_path: Path) -> 
         missed.append(f"mean OSPA {result['ospa_mean']:.3f} m > {MEAN_GOAL}")
     if result["card_correct"] < COUNT_GOAL:
         missed.append(f"correct count {result['card_correct']:.1%} < {COUNT_GOAL:.0%}")
-    if missed and name in KNOWN_GAPS:
-        pytest.xfail(f"{name}: {'; '.join(missed)} (known gap: {KNOWN_GAPS[name]})")
+    if name in KNOWN_GAPS:
+        floor, figures = KNOWN_GAPS[name]
+        assert missed, f"{name} meets the goals now ({result}): remove it from KNOWN_GAPS"
+        assert result["card_correct"] >= floor, f"{name}: below its known-gap floor: {result}"
+        pytest.xfail(f"{name}: {'; '.join(missed)} (known gap: {figures})")
     assert not missed, f"{name}: {'; '.join(missed)}"  # a goal met before is kept
 
 

@@ -111,6 +111,37 @@ def test_confirmed_track_below_keep_is_coasted_for_coast_time(rng: np.random.Gen
     assert all(ids == [] for dt, ids in reported.items() if dt >= 0.54), reported
 
 
+def test_coast_ends_when_the_clock_steps_back(rng: np.random.Generator) -> None:
+    """Coasting is timed on elapsed time: a clock that steps back 10 s (a replay restarted
+    without ``reset``) or stands still does not keep a faded track reported for ever."""
+    looking = Sensor(
+        name="a",
+        origin=np.array([0.0, 0.0]),
+        boresight=math.pi / 4,
+        beamwidth=math.radians(100),
+        max_range=12.0,
+    )
+    away = Sensor(
+        name="b",
+        origin=np.array([10.0, 0.0]),
+        boresight=0.0,
+        beamwidth=math.radians(100),
+        max_range=12.0,
+    )
+    still = np.tile(np.array([[3.0, 3.0]]), (50, 1, 1))
+    tracker, outputs = run_tracker(rng, still, [looking])
+    (track,) = outputs[-1].tracks
+    tracker._mix.w *= 0.3 / tracker._mix.w[tracker._mix.label == track.id].sum()
+    t0 = outputs[-1].t - 10.0  # the clock steps back
+    reported = []
+    for k in range(1, 40):
+        t = t0 + k * FRAME
+        out = tracker.step(t, [detect(rng, away, t, still[0][:0], clutter=0.0)])
+        reported.append([tr.id for tr in out.tracks if tr.id == track.id])
+    assert reported[0] == [track.id], reported
+    assert reported[-1] == [], reported
+
+
 def test_new_target_born_within_half_a_second(rng: np.random.Generator) -> None:
     times, X = crossing_truth(4.0)
     alive = np.ones(X.shape[:2], dtype=bool)

@@ -156,6 +156,9 @@ def test_config_rejects_times_that_switch_the_rules_off_silently() -> None:
         {"relink_time": float("inf")},
         {"duplicate_window": -1.0},
         {"duplicate_steps": -3},
+        {"coast_time": float("nan")},
+        {"coast_time": -1.0},
+        {"coast_time": float("inf")},
     ):
         with pytest.raises(ValueError):
             dataclasses.replace(CONFIG, **kw)

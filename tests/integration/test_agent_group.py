@@ -328,6 +328,12 @@ def test_scale_rejects_a_bad_rt_priority_with_one_line():
     assert_one_line_error(
         uwbnet("scale", "--nodes", "4", "--catch-up", "0.01", "--threads", "agent"), "--catch-up"
     )
+    bad = uwbnet("scale", "--nodes", "4", "--batches-per-wake", "0")
+    assert_one_line_error(bad, "--batches-per-wake")
+    assert_one_line_error(
+        uwbnet("scale", "--nodes", "4", "--batches-per-wake", "2", "--threads", "process"),
+        "--batches-per-wake",
+    )
 
 
 def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):

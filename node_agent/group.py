@@ -79,6 +79,7 @@ class SlotOrderGroup:
         batch_window: float = 0.0,
         acquire_ahead: bool = True,
         catch_up: float = 0.0,
+        batches_per_wake: int = 1,
     ) -> None:
         if not agents:
             raise ValueError("a SlotOrderGroup needs at least one agent")
@@ -93,6 +94,11 @@ class SlotOrderGroup:
             raise ValueError(f"catch_up must be 0 to 1 s, not {catch_up}")
         if catch_up and not batch_window:
             raise ValueError("catch_up needs batch_window > 0 (simulated drivers)")
+        if batches_per_wake < 1 or int(batches_per_wake) != batches_per_wake:
+            raise ValueError(f"batches_per_wake must be an integer >= 1, not {batches_per_wake}")
+        if batches_per_wake > 1 and not batch_window:
+            raise ValueError("batches_per_wake > 1 needs batch_window > 0 (simulated drivers)")
+        self.batches_per_wake = int(batches_per_wake)
         for agent in self.agents:
             agent.catch_up = catch_up
         self._stop = threading.Event()
@@ -136,27 +142,27 @@ class SlotOrderGroup:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            pending = []
-            for i, agent in enumerate(self.agents):
-                slot = agent.next_slot()
-                if slot is not None:
-                    pending.append((slot.t, i))
-            if not pending:
+            upcoming = self._next_batch()
+            if upcoming is None:
                 self._stop.wait(0.05)
                 continue
-            pending.sort()
-            first = pending[0][0]
+            # the batch: the earliest slot and those starting within the window after it
+            batch, first, last = upcoming
             wait = first - self.clock()
             if wait > 0 and self._stop.wait(wait):
                 break
-            # the batch: the earliest slot and those starting within the window after it
-            batch = [i for t, i in pending if t <= first + self.batch_window]
-            last = pending[len(batch) - 1][0]
             try:
                 if self.batch_window == 0.0:
-                    self._serve_one(self.agents[pending[0][1]])
+                    self._serve_one(self.agents[batch[0]])
                 else:
                     self._serve_batch([self.agents[i] for i in batch], first, last)
+                    for _ in range(self.batches_per_wake - 1):
+                        # the next batch at once, ahead of its slots (released at its last)
+                        ahead = self._next_batch()
+                        if ahead is None or self._stop.is_set():
+                            break
+                        batch, first, last = ahead
+                        self._serve_batch([self.agents[i] for i in batch], first, last)
             except Exception:
                 # one thread serves every node of the process: an unexpected error in one
                 # slot must not end them all; counted and logged, those slots given up (not
@@ -166,6 +172,21 @@ class SlotOrderGroup:
                     log.exception("slot service failed (%d so far)", self.errors)
                 for i in batch:
                     self.agents[i].skip_until(last)
+
+    def _next_batch(self) -> tuple[list[int], float, float] | None:
+        """The agents (indices) of the next batch, its first and last slot start; None if no
+        agent has a slot."""
+        pending = []
+        for i, agent in enumerate(self.agents):
+            slot = agent.next_slot()
+            if slot is not None:
+                pending.append((slot.t, i))
+        if not pending:
+            return None
+        pending.sort()
+        first = pending[0][0]
+        batch = [i for t, i in pending if t <= first + self.batch_window]
+        return batch, first, pending[len(batch) - 1][0]
 
     def _serve_one(self, agent: NodeAgent) -> None:
         slot = agent.next_slot()
@@ -177,7 +198,7 @@ class SlotOrderGroup:
         self._queued.set()
 
     def _serve_batch(self, agents: list[NodeAgent], first: float, last: float) -> None:
-        late = self.clock() - first
+        late = max(self.clock() - first, 0.0)  # a batch served ahead is not late
         batch = []
         for agent in agents:
             slot = agent.next_slot()
@@ -231,7 +252,7 @@ class SlotOrderGroup:
                     if stop.wait(hold):
                         return
                 else:
-                    # bounded: a release is at most one batch window after its batch began
-                    time.sleep(min(hold, self.batch_window))
+                    # bounded: a release is at most batches_per_wake frames away
+                    time.sleep(min(hold, 1.0))
             self._order.popleft()
             agent.publish_pending(count)

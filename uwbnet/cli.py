@@ -372,6 +372,7 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 frame_lag=args.frame_lag,
                 frame_wait=args.frame_wait,
                 catch_up=args.catch_up,
+                batches_per_wake=args.batches_per_wake,
                 seed=args.seed,
                 out=args.out,
             )
@@ -979,6 +980,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="--threads batch: still serve a slot whose start passed less than S seconds ago "
         "(default 0: skip it)",
+    )
+    sc.add_argument(
+        "--batches-per-wake",
+        type=int,
+        default=1,
+        metavar="B",
+        help="--threads batch: a node process serves B batches (frames) per wake-up, each "
+        "published at its own slots (default 1)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

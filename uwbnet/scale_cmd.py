@@ -82,6 +82,9 @@ class ScaleConfig:
     # --threads batch: a node process still serves a slot whose start passed less than this
     # (s) ago (SlotOrderGroup catch_up); 0: skipped, as before
     catch_up: float = 0.0
+    # --threads batch: a node process's acquisition thread serves this many batches (frames)
+    # per wake-up, each published at its own slots (SlotOrderGroup batches_per_wake)
+    batches_per_wake: int = 1
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -271,6 +274,10 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError(f"--catch-up must be 0 to 1 s, not {cfg.catch_up}")
     if cfg.catch_up and cfg.threads != "batch":
         raise ScaleError("--catch-up needs --threads batch")
+    if cfg.batches_per_wake < 1:
+        raise ScaleError(f"--batches-per-wake must be >= 1, not {cfg.batches_per_wake}")
+    if cfg.batches_per_wake > 1 and cfg.threads != "batch":
+        raise ScaleError("--batches-per-wake needs --threads batch")
     if cfg.frame_lag < 1:
         raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
     if cfg.frame_wait < 0:
@@ -301,6 +308,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "frame_lag": cfg.frame_lag,
         "frame_wait": cfg.frame_wait,
         "catch_up": cfg.catch_up,
+        "batches_per_wake": cfg.batches_per_wake,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

@@ -39,9 +39,12 @@ def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-
         time.sleep(0.02)
 
 
-@pytest.mark.parametrize("batch_window", [0.0, 0.01])
-def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, batch_window):
-    # batch_window 0.01: the agents' slots of a frame served and published together
+@pytest.mark.parametrize(("batch_window", "per_wake"), [(0.0, 1), (0.01, 1), (0.01, 2)])
+def test_one_thread_serves_the_agents_of_a_process_in_slot_order(
+    hub_endpoint, batch_window, per_wake
+):
+    # batch_window 0.01: the agents' slots of a frame served and published together;
+    # per_wake 2: two frames' batches per wake-up, the second ahead of its slots
     network = SimNetwork(load_scenario("foyer3"), seed=7)
     nodes = sorted(network.node_infos())
     assert len(nodes) >= 3
@@ -65,7 +68,7 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(hub_endpoint, b
             agents.append(
                 NodeAgent(session, driver, AgentConfig(node=node, net=NET, publish_ir=False))
             )
-        group = SlotOrderGroup(agents, batch_window=batch_window)
+        group = SlotOrderGroup(agents, batch_window=batch_window, batches_per_wake=per_wake)
         group.start()
         stack.callback(group.stop)
         names = {t.name for t in threading.enumerate()}
@@ -249,6 +252,35 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
         SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 
 
+def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_slots():
+    t0 = time.time() + 0.05
+    # three frames of two adjacent slots (3 ms apart), 20 ms apart; window 10 ms
+    a = _FakeAgent("a", [t0, t0 + 0.020, t0 + 0.040])
+    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.023, t0 + 0.043])
+    _FakeDriver.batches = []
+    group = SlotOrderGroup([a, b], batch_window=0.01, batches_per_wake=2)  # type: ignore[list-item]
+    group.start()
+    try:
+        _wait_for(lambda: all(len(x.published) == 3 for x in (a, b)), 5.0, "all published")
+    finally:
+        group.stop()
+    # frame 0 at its start; frame 1 at once after it, in the same wake-up, ahead of its
+    # slots (not late); frame 2 in the next wake-up, not before its first slot
+    assert all(a.served[0][0] <= x.served[0][1] for x in (a, b))
+    assert all(x.served[1][1] < a.served[1][0] for x in (a, b))
+    assert a.late[1] == b.late[1] == 0.0
+    assert all(x.served[2][1] >= a.served[2][0] for x in (a, b))
+    # each frame prepared as its own batch, in slot order
+    assert _FakeDriver.batches == [[("a", a.served[f][0]), ("b", b.served[f][0])] for f in range(3)]
+    # every message leaves once its own frame's last slot (b's) has started, none before
+    for f in range(3):
+        assert all(x.published[f][1] >= b.served[f][0] for x in (a, b))
+    with pytest.raises(ValueError, match="batches_per_wake"):
+        SlotOrderGroup([a], batch_window=0.01, batches_per_wake=0)  # type: ignore[list-item]
+    with pytest.raises(ValueError, match="batch_window"):
+        SlotOrderGroup([a], batches_per_wake=2)  # type: ignore[list-item]
+
+
 class _SlowAgent(_FakeAgent):
     """Takes 30 ms to serve a slot: a batch is still being served when the group stops."""
 
@@ -295,6 +327,12 @@ def test_scale_rejects_a_bad_rt_priority_with_one_line():
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--catch-up", "2"), "--catch-up")
     assert_one_line_error(
         uwbnet("scale", "--nodes", "4", "--catch-up", "0.01", "--threads", "agent"), "--catch-up"
+    )
+    bad = uwbnet("scale", "--nodes", "4", "--batches-per-wake", "0")
+    assert_one_line_error(bad, "--batches-per-wake")
+    assert_one_line_error(
+        uwbnet("scale", "--nodes", "4", "--batches-per-wake", "2", "--threads", "process"),
+        "--batches-per-wake",
     )
 
 

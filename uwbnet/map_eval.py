@@ -17,9 +17,11 @@ Figures (metres, degrees):
   object, the nearest mapped point to its outline (``found`` within 15 cm).
 * trajectory: RMSE of the position and of the heading over all acquisitions, and the mean
   position and heading error per stop (``per_stop_m``, ``per_stop_yaw_deg``: a stop is a run of
-  acquisitions at one true position, as the robot turns on the spot). With a dead-reckoning
-  trajectory (the odometry integrated alone), ``dead_reckoning`` holds the same figures for
-  it: the baseline the filter must beat.
+  acquisitions at one true position, as the robot turns on the spot), the heading error a stop
+  gains while turning (``turn_drift_deg``) and the RMSE left after the best rigid fit of the
+  whole path (``aligned_rmse_m``: what remains besides one rotation and shift). With a
+  dead-reckoning trajectory (the odometry integrated alone), ``dead_reckoning`` holds the
+  same figures for it: the baseline the filter must beat.
 """
 
 from __future__ import annotations
@@ -204,9 +206,15 @@ def evaluate_map(
 def trajectory_errors(traj: np.ndarray, truth_traj: np.ndarray) -> dict[str, Any]:
     """Position and heading errors of ``[t, x, y, yaw]`` rows against the truth (same frame).
 
-    Returns RMSE, maximum and final position error (m), heading RMSE (degrees), and per stop
-    (consecutive acquisitions whose true position moves by less than 1 cm) the mean position
-    error (m) and mean absolute heading error (degrees), when there are at most 200 stops.
+    Returns RMSE, maximum and final position error (m), heading RMSE (degrees), the RMSE
+    after the best rigid fit of the path to the truth (``aligned_rmse_m``; the fit's rotation
+    of the path onto the truth is ``aligned_rotation_deg``: the part of the error that is one
+    rotation of the whole path, e.g. from a heading error made at the first stop), and per
+    stop (consecutive acquisitions whose true position moves by less than 1 cm) the mean
+    position error (m), the mean absolute heading error (degrees) and the heading error
+    gained during the stop's turn (``per_stop_turn_drift_deg``, last minus first
+    acquisition; ``turn_drift_deg`` is its mean absolute value), when there are at most 200
+    stops.
     """
     idx = np.clip(np.searchsorted(truth_traj[:, 0], traj[:, 0] - 1e-9), 0, len(truth_traj) - 1)
     tt = truth_traj[idx]
@@ -221,7 +229,25 @@ def trajectory_errors(traj: np.ndarray, truth_traj: np.ndarray) -> dict[str, Any
         "final_m": round(float(dp[-1]), 3),
         "yaw_rmse_deg": round(float(np.sqrt(np.mean(dy**2))), 2),
     }
+    # the path's shape against its frame: the best rigid fit (Kabsch) removes a rotation and
+    # shift of the whole path, e.g. a heading error made in the first stop that rotates
+    # every later pose about the start
+    a, b = traj[:, 1:3], tt[:, 1:3]
+    ca, cb = a - a.mean(0), b - b.mean(0)
+    h = ca.T @ cb
+    rot = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = math.cos(rot), math.sin(rot)
+    fitted = ca @ np.array([[c, s], [-s, c]]) + b.mean(0)
+    out["aligned_rmse_m"] = round(float(np.sqrt(np.mean(np.sum((fitted - b) ** 2, 1)))), 3)
+    out["aligned_rotation_deg"] = round(math.degrees(rot), 2)
     if n.size <= _MAX_STOPS:  # a robot that drives all the time has no stops to list
         out["per_stop_m"] = np.round(np.bincount(stop, dp) / n, 3).tolist()
         out["per_stop_yaw_deg"] = np.round(np.bincount(stop, np.abs(dy)) / n, 2).tolist()
+        # heading error gained while turning on the spot (last minus first acquisition of
+        # each stop); the rest of a stop's error was there when it began (the drive to it)
+        first = np.r_[0, np.flatnonzero(moved)]
+        last = np.r_[first[1:] - 1, len(dy) - 1]
+        turn = (dy[last] - dy[first] + 180.0) % 360.0 - 180.0
+        out["turn_drift_deg"] = round(float(np.mean(np.abs(turn))), 2)
+        out["per_stop_turn_drift_deg"] = np.round(turn, 2).tolist()
     return out

@@ -41,3 +41,24 @@ def test_compose_integrates_odometry_in_the_robot_frame() -> None:
     pose = compose(np.zeros(3), np.array([1.0, 0.0, math.pi / 2]))
     pose = compose(pose, np.array([1.0, 0.0, 0.0]))
     np.testing.assert_allclose(pose, [1.0, 1.0, math.pi / 2], atol=1e-12)
+
+
+def test_a_rotated_path_fits_the_truth_once_aligned_and_the_turn_drift_is_per_stop() -> None:
+    # Three stops of 5 headings; the estimate is the truth rotated by 2 degrees about the
+    # start, and at the middle stop its heading drifts by 1 degree per acquisition.
+    truth = np.zeros((15, 4))
+    truth[:, 0] = np.arange(15.0)
+    truth[5:10, 1], truth[10:, 1:3] = 3.0, [3.0, 4.0]
+    truth[:, 3] = np.radians(np.tile(np.arange(5) * 72.0, 3))
+    rot = np.radians(2.0)
+    c, s = math.cos(rot), math.sin(rot)
+    est = truth.copy()
+    est[:, 1:3] = truth[:, 1:3] @ np.array([[c, s], [-s, c]])
+    est[:, 3] += rot
+    est[5:10, 3] += np.radians(np.arange(5.0))
+    out = trajectory_errors(est, truth)
+    assert out["rmse_m"] > 0.1
+    assert out["aligned_rmse_m"] < 1e-3
+    assert math.isclose(out["aligned_rotation_deg"], -2.0, abs_tol=1e-2)
+    assert out["per_stop_turn_drift_deg"] == [0.0, 4.0, 0.0]
+    assert math.isclose(out["turn_drift_deg"], 4.0 / 3, abs_tol=0.01)

@@ -141,3 +141,51 @@ def test_the_relocalisation_matches_with_its_own_range_noise() -> None:
     assert slam.relocaliser.explained(pose, rel, pairs, lmap) == 1
     strict = RbpfSlam(ANTENNAS, SlamConfig(relocalise_sigma=0.05)).relocaliser
     assert strict.explained(pose, rel, pairs, lmap) == 0
+
+
+def test_the_match_is_centred_on_the_odometry_prediction_not_on_one_random_draw() -> None:
+    # After a drive every particle is one draw of the motion model; centring the match (its
+    # grid and its prior) on the heaviest particle put it up to a standard deviation of the
+    # drive's spread off. It is centred on that particle's noise-free odometry prediction.
+    from fusion_center.mapping import RbpfSlam, SlamConfig
+    from sim_nodes.robot_record import odometry_increments
+
+    for from_prediction in (True, False):
+        room = rectangle_room()
+        poses = stop_and_turn_poses([[1.5, 1.5], [2.7, 1.3], [4.6, 3.6]], 15, np.radians(24.0))
+        rng = np.random.default_rng(3)
+        odo = odometry_increments(poses)  # exact: only the filter's motion noise remains
+        cfg = SlamConfig(
+            n_particles=10,
+            association="state",
+            seed=3,
+            range_sigma=0.03,
+            relocalise_distance=2.0,
+            relocalise_from_prediction=from_prediction,
+        )
+        slam = RbpfSlam(ANTENNAS, cfg)
+        search = slam.relocaliser.search
+        seen: list[tuple[np.ndarray, np.ndarray]] = []
+
+        def spy(center, cov, *args, _search=search, _seen=seen, **kw):  # records, then searches
+            _seen.append((np.array(center), np.array(cov)))
+            return _search(center, cov, *args, **kw)
+
+        slam.relocaliser.search = spy  # type: ignore[method-assign]
+        expected = None
+        for k, pose in enumerate(poses):
+            if k:
+                before = slam.pose[int(np.argmax(slam.logw))].copy()
+                slam.predict(1.0, odo[k])
+                if slam.holding and expected is None:
+                    expected = compose_poses(before[None], odo[k])[0]
+                    drawn = slam.pose[int(np.argmax(slam.logw))].copy()
+            slam.update(echo_pairs(room, pose, ANTENNAS, rng))
+        slam.flush()
+        assert expected is not None and len(seen) >= 1
+        if from_prediction:
+            np.testing.assert_allclose(seen[0][0], expected, atol=1e-12)
+        else:
+            np.testing.assert_allclose(seen[0][0], drawn, atol=1e-12)
+        # the draw is off the prediction by the motion noise of a 3 m drive
+        assert np.hypot(*(drawn[:2] - expected[:2])) > 1e-4

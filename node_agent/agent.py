@@ -173,16 +173,25 @@ class NodeAgent:
             if item is not None:
                 self._put(*item)
 
-    def publish_pending(self, limit: int | None = None) -> None:
-        """Publish the oldest ``limit`` queued messages (all if None) now, without waiting
-        (the publisher thread of a :class:`node_agent.group.SlotOrderGroup`)."""
-        n = 0
-        while limit is None or n < limit:
-            item = self._outbox.get(timeout=0.0)
+    def publish_pending(self, until: int | None = None) -> None:
+        """Publish now, without waiting, the queued messages put before the ``until``-th put
+        of the agent's life (all if None): the publisher thread of a
+        :class:`node_agent.group.SlotOrderGroup`, which marks each served slot by
+        :attr:`queued_total` after it. Marked by put number, not counted: when the outbox
+        overflowed (its oldest dropped, counted), a later slot's message is never taken in a
+        dropped one's place and sent before its own slot."""
+        while True:
+            item = (
+                self._outbox.get(timeout=0.0) if until is None else self._outbox.get_before(until)
+            )
             if item is None:
                 return
             self._put(*item)
-            n += 1
+
+    @property
+    def queued_total(self) -> int:
+        """Messages put in the outbox over the agent's life (published, queued or dropped)."""
+        return self._outbox.received
 
     def _put(self, publisher: Any, payload: bytes) -> None:
         try:

@@ -38,6 +38,11 @@ from node_agent.tdma import SlotTiming
 
 log = logging.getLogger(__name__)
 
+#: At most this many batches served per wake-up: what is served ahead waits in the agents'
+#: outboxes (100 messages, 2 per acquisition with ``ir``), and both a stop and a schedule
+#: change take effect only after it (8 batches: at most 160 ms at 50 frames/s).
+MAX_BATCHES_PER_WAKE = 8
+
 
 class SlotOrderGroup:
     """Runs the acquisitions of ``agents`` on one thread in the order of their slots.
@@ -94,8 +99,13 @@ class SlotOrderGroup:
             raise ValueError(f"catch_up must be 0 to 1 s, not {catch_up}")
         if catch_up and not batch_window:
             raise ValueError("catch_up needs batch_window > 0 (simulated drivers)")
-        if batches_per_wake < 1 or int(batches_per_wake) != batches_per_wake:
-            raise ValueError(f"batches_per_wake must be an integer >= 1, not {batches_per_wake}")
+        if not 1 <= batches_per_wake <= MAX_BATCHES_PER_WAKE or int(batches_per_wake) != (
+            batches_per_wake
+        ):
+            raise ValueError(
+                f"batches_per_wake must be an integer from 1 to {MAX_BATCHES_PER_WAKE},"
+                f" not {batches_per_wake}"
+            )
         if batches_per_wake > 1 and not batch_window:
             raise ValueError("batches_per_wake > 1 needs batch_window > 0 (simulated drivers)")
         self.batches_per_wake = int(batches_per_wake)
@@ -104,6 +114,7 @@ class SlotOrderGroup:
         self._stop = threading.Event()
         # (release time, agent, messages) in the order of the acquisitions: the publisher
         # thread sends them in slot order, as they were acquired, not before their release
+        # (the messages marked by the agent's put count after the slot: see publish_pending)
         self._order: collections.deque[tuple[float, NodeAgent, int]] = collections.deque()
         self._queued = threading.Event()
         # set once the acquisition thread has ended: the publisher's final flush
@@ -194,7 +205,8 @@ class SlotOrderGroup:
             return
         if slot.t > self.clock():
             return  # the new schedule moved it later: wait again
-        self._order.append((0.0, agent, agent.serve(slot)))
+        agent.serve(slot)
+        self._order.append((0.0, agent, agent.queued_total))
         self._queued.set()
 
     def _serve_batch(self, agents: list[NodeAgent], first: float, last: float) -> None:
@@ -208,7 +220,8 @@ class SlotOrderGroup:
         if self.acquire_ahead and len(batch) > 1:
             self._acquire_ahead(batch)
         for agent, slot in batch:
-            self._order.append((last, agent, agent.serve(slot, late=late)))
+            agent.serve(slot, late=late)
+            self._order.append((last, agent, agent.queued_total))
         self._queued.set()  # one wake-up of the publisher per batch
 
     def _acquire_ahead(self, batch: list[tuple[NodeAgent, SlotTiming]]) -> None:
@@ -245,7 +258,7 @@ class SlotOrderGroup:
         """Publish the queued messages in order, each once its release time has come; with
         ``stop`` set, return early (what is left goes in the final flush)."""
         while self._order and not (stop is not None and stop.is_set()):
-            release, agent, count = self._order[0]
+            release, agent, mark = self._order[0]
             hold = release - self.clock()
             if hold > 0:
                 if stop is not None:
@@ -255,4 +268,4 @@ class SlotOrderGroup:
                     # bounded: a release is at most batches_per_wake frames away
                     time.sleep(min(hold, 1.0))
             self._order.popleft()
-            agent.publish_pending(count)
+            agent.publish_pending(mark)

@@ -106,6 +106,16 @@ class _Channel(Generic[T]):
                 self._cond.wait(remaining)
             return self._items.popleft()
 
+    def get_before(self, index: int) -> T | None:
+        """Take the oldest item if it was the ``k``-th put with ``k < index`` (counting from
+        0 over the channel's life), else None; never waits. Items dropped when the channel
+        was full keep their numbers, so a reader that marked "up to put ``index``" never
+        takes a later put in their place."""
+        with self._cond:
+            if not self._items or self.received - len(self._items) >= index:
+                return None
+            return self._items.popleft()
+
     def drain(self) -> list[T]:
         """Take every queued item without waiting."""
         with self._cond:

@@ -986,8 +986,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         metavar="B",
-        help="--threads batch: a node process serves B batches (frames) per wake-up, each "
-        "published at its own slots (default 1)",
+        help="--threads batch: a node process serves B batches (10 ms of slots each; 1-8) "
+        "per wake-up, each published at its own slots (default 1)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

@@ -274,8 +274,15 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError(f"--catch-up must be 0 to 1 s, not {cfg.catch_up}")
     if cfg.catch_up and cfg.threads != "batch":
         raise ScaleError("--catch-up needs --threads batch")
-    if cfg.batches_per_wake < 1:
-        raise ScaleError(f"--batches-per-wake must be >= 1, not {cfg.batches_per_wake}")
+    from node_agent.group import MAX_BATCHES_PER_WAKE
+
+    if not (
+        isinstance(cfg.batches_per_wake, int) and 1 <= cfg.batches_per_wake <= MAX_BATCHES_PER_WAKE
+    ):
+        raise ScaleError(
+            f"--batches-per-wake must be an integer from 1 to {MAX_BATCHES_PER_WAKE},"
+            f" not {cfg.batches_per_wake}"
+        )
     if cfg.batches_per_wake > 1 and cfg.threads != "batch":
         raise ScaleError("--batches-per-wake needs --threads batch")
     if cfg.frame_lag < 1:

@@ -163,9 +163,15 @@ class _FakeAgent:
         self.times.pop(0)
         return 1
 
-    def publish_pending(self, limit: int | None = None) -> None:
-        if limit:  # the group's final flush (None) finds nothing left
-            self.published.append((limit, time.time()))
+    @property
+    def queued_total(self) -> int:
+        return len(self.served)
+
+    def publish_pending(self, until: int | None = None) -> None:
+        # the group marks each slot by the put count after it: one message per slot here
+        done = sum(n for n, _ in self.published)
+        if until is not None and until > done:  # the final flush (None) finds nothing left
+            self.published.append((until - done, time.time()))
 
     def skip_until(self, t: float) -> None:
         self.times = [x for x in self.times if x > t]
@@ -253,10 +259,11 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
 
 
 def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_slots():
-    t0 = time.time() + 0.05
-    # three frames of two adjacent slots (3 ms apart), 20 ms apart; window 10 ms
-    a = _FakeAgent("a", [t0, t0 + 0.020, t0 + 0.040])
-    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.023, t0 + 0.043])
+    t0 = time.time() + 0.2
+    # three frames of two adjacent slots (3 ms apart), 60 ms apart (a margin for a loaded
+    # machine's scheduling); window 10 ms
+    a = _FakeAgent("a", [t0, t0 + 0.060, t0 + 0.120])
+    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.063, t0 + 0.123])
     _FakeDriver.batches = []
     group = SlotOrderGroup([a, b], batch_window=0.01, batches_per_wake=2)  # type: ignore[list-item]
     group.start()
@@ -275,8 +282,9 @@ def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_s
     # every message leaves once its own frame's last slot (b's) has started, none before
     for f in range(3):
         assert all(x.published[f][1] >= b.served[f][0] for x in (a, b))
-    with pytest.raises(ValueError, match="batches_per_wake"):
-        SlotOrderGroup([a], batch_window=0.01, batches_per_wake=0)  # type: ignore[list-item]
+    for bad in (0, 9, 2.5):
+        with pytest.raises(ValueError, match="batches_per_wake"):
+            SlotOrderGroup([a], batch_window=0.01, batches_per_wake=bad)  # type: ignore[list-item]
     with pytest.raises(ValueError, match="batch_window"):
         SlotOrderGroup([a], batches_per_wake=2)  # type: ignore[list-item]
 
@@ -328,8 +336,9 @@ def test_scale_rejects_a_bad_rt_priority_with_one_line():
     assert_one_line_error(
         uwbnet("scale", "--nodes", "4", "--catch-up", "0.01", "--threads", "agent"), "--catch-up"
     )
-    bad = uwbnet("scale", "--nodes", "4", "--batches-per-wake", "0")
-    assert_one_line_error(bad, "--batches-per-wake")
+    for b in ("0", "9"):
+        bad = uwbnet("scale", "--nodes", "4", "--batches-per-wake", b)
+        assert_one_line_error(bad, "--batches-per-wake")
     assert_one_line_error(
         uwbnet("scale", "--nodes", "4", "--batches-per-wake", "2", "--threads", "process"),
         "--batches-per-wake",
@@ -369,6 +378,42 @@ def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
         now[0] += 0.02  # 25 ms after frame 100's slot: beyond the catch-up, 101's is 5 ms ago
         agent._schedule_in.put(schedule_message(network, period, seq=2).to_wire())
         assert agent.next_slot().frame == 101  # type: ignore[union-attr]
+
+
+def test_an_overflowed_outbox_never_sends_a_later_slot_in_a_dropped_ones_place(hub_endpoint):
+    """The group marks each served slot by the agent's put count: when the outbox dropped
+    its oldest (full), releasing slot k publishes nothing of slots after k (they would leave
+    before their own slot start)."""
+    from sim_nodes.record import schedule_message
+
+    network = SimNetwork(load_scenario("foyer3"), seed=3)
+    node = network.node_ids[0]
+    period = network.scenario.frame_period
+    now = [100 * period - 0.001]
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        driver = stack.enter_context(SimulatedDriver(network, node))
+        agent = NodeAgent(
+            session, driver, AgentConfig(node=node, net=NET, publish_ir=False, outbox=3),
+            clock=lambda: now[0],
+        )  # fmt: skip
+        agent.start(threads=False)
+        stack.callback(agent.stop)
+        agent._schedule_in.put(schedule_message(network, period).to_wire())
+        marks = []
+        for _ in range(6):  # six slots served ahead of any release: three dropped
+            slot = agent.next_slot()
+            assert slot is not None
+            now[0] = slot.t
+            agent.serve(slot)
+            marks.append(agent.queued_total)
+        assert agent._outbox.dropped == 3 and len(agent._outbox) == 3
+        for k in range(3):  # the dropped slots' releases: nothing of later slots leaves
+            agent.publish_pending(marks[k])
+            assert agent.counters["published"] == 0 and len(agent._outbox) == 3
+        for k in range(3, 6):  # each kept slot's release sends exactly its own message
+            agent.publish_pending(marks[k])
+            assert agent.counters["published"] == k - 2 and len(agent._outbox) == 5 - k
 
 
 def test_a_schedule_change_that_moves_the_slot_later_does_not_serve_a_frame_twice(hub_endpoint):

@@ -207,14 +207,15 @@ def trajectory_errors(traj: np.ndarray, truth_traj: np.ndarray) -> dict[str, Any
     """Position and heading errors of ``[t, x, y, yaw]`` rows against the truth (same frame).
 
     Returns RMSE, maximum and final position error (m), heading RMSE (degrees), the RMSE
-    after the best rigid fit of the path to the truth (``aligned_rmse_m``; the fit's rotation
-    of the path onto the truth is ``aligned_rotation_deg``: the part of the error that is one
-    rotation of the whole path, e.g. from a heading error made at the first stop), and per
+    after the best rigid fit of the path to the truth (``aligned_rmse_m``; the path's rotation
+    against the truth, the inverse of the fit's, is ``aligned_rotation_deg``: the part of the
+    error that is one rotation of the whole path, with the sign of the heading error that made
+    it, e.g. at the first stop), and per
     stop (consecutive acquisitions whose true position moves by less than 1 cm) the mean
     position error (m), the mean absolute heading error (degrees) and the heading error
     gained during the stop's turn (``per_stop_turn_drift_deg``, last minus first
-    acquisition; ``turn_drift_deg`` is its mean absolute value), when there are at most 200
-    stops.
+    acquisition; ``turn_drift_deg`` is its mean absolute value over the stops of at least
+    two acquisitions, None if there are none), when there are at most 200 stops.
     """
     idx = np.clip(np.searchsorted(truth_traj[:, 0], traj[:, 0] - 1e-9), 0, len(truth_traj) - 1)
     tt = truth_traj[idx]
@@ -239,7 +240,7 @@ def trajectory_errors(traj: np.ndarray, truth_traj: np.ndarray) -> dict[str, Any
     c, s = math.cos(rot), math.sin(rot)
     fitted = ca @ np.array([[c, s], [-s, c]]) + b.mean(0)
     out["aligned_rmse_m"] = round(float(np.sqrt(np.mean(np.sum((fitted - b) ** 2, 1)))), 3)
-    out["aligned_rotation_deg"] = round(math.degrees(rot), 2)
+    out["aligned_rotation_deg"] = round(-math.degrees(rot), 2) + 0.0  # the path's (no -0.0)
     if n.size <= _MAX_STOPS:  # a robot that drives all the time has no stops to list
         out["per_stop_m"] = np.round(np.bincount(stop, dp) / n, 3).tolist()
         out["per_stop_yaw_deg"] = np.round(np.bincount(stop, np.abs(dy)) / n, 2).tolist()
@@ -248,6 +249,9 @@ def trajectory_errors(traj: np.ndarray, truth_traj: np.ndarray) -> dict[str, Any
         first = np.r_[0, np.flatnonzero(moved)]
         last = np.r_[first[1:] - 1, len(dy) - 1]
         turn = (dy[last] - dy[first] + 180.0) % 360.0 - 180.0
-        out["turn_drift_deg"] = round(float(np.mean(np.abs(turn))), 2)
-        out["per_stop_turn_drift_deg"] = np.round(turn, 2).tolist()
+        turned = last > first  # a one-acquisition "stop" (driving) has no turn to drift in
+        out["turn_drift_deg"] = (
+            round(float(np.mean(np.abs(turn[turned]))), 2) if turned.any() else None
+        )
+        out["per_stop_turn_drift_deg"] = (np.round(turn, 2) + 0.0).tolist()
     return out

@@ -171,6 +171,9 @@ class SlamConfig:
         prediction of the matched particle; off, on that particle's pose after the drive,
         which is one random draw of the motion model (up to a standard deviation of the
         drive's spread off, so the true pose could fall near or beyond the grid's 3 sigma).
+        With ``relocalise_hypotheses`` > 1 the hypotheses are the heaviest particles of
+        distinct origins (the drive's copies of one particle share its map and prediction,
+        so they would repeat one search).
     seed : int
         Seed of the filter's random generator.
     """
@@ -217,6 +220,9 @@ class SlamConfig:
         k = self.relocalise_hypotheses
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
             raise ValueError(f"relocalise_hypotheses must be an integer >= 1, got {k!r}")
+        if not isinstance(self.relocalise_from_prediction, (bool, np.bool_)):
+            got = self.relocalise_from_prediction
+            raise ValueError(f"relocalise_from_prediction must be a bool, got {got!r}")
 
 
 @dataclass(slots=True)
@@ -331,6 +337,8 @@ class RbpfSlam:
         self._held: list[tuple] | None = None
         self._held_start: tuple[FloatArray, FloatArray] | None = None
         self._held_centre: FloatArray | None = None
+        #: the particle before the drive's expansion each held particle was copied from
+        self._held_origin: npt.NDArray[np.int64] | None = None
         self._held_pairs = 0
         self._held_spread = 0.0
         # estimates of the held-back acquisitions after their replay (see holding)
@@ -390,6 +398,7 @@ class RbpfSlam:
             # random draw of the motion model
             origin = np.arange(self.pose.shape[0]) // (self.pose.shape[0] // before.shape[0])
             self._held_centre = compose_poses(before, np.asarray(odometry, float))[origin]
+            self._held_origin = origin
 
     def _move(self, dt: float, odometry: npt.ArrayLike | None) -> None:
         """The motion model of :meth:`predict` (with the particle expansion)."""
@@ -768,7 +777,13 @@ class RbpfSlam:
             # several hypotheses (the heaviest particles' maps and poses): the match that
             # explains the most pairs wins, so one unlucky heaviest particle does not decide
             explained = -1
-            for h in np.argsort(-self.logw)[: max(cfg.relocalise_hypotheses, 1)]:
+            order = np.argsort(-self.logw)
+            origin = self._held_origin
+            if cfg.relocalise_from_prediction and origin is not None and origin.size == order.size:
+                # copies of one particle share its map and its centre: one search each
+                _, first = np.unique(origin[order], return_index=True)
+                order = order[np.sort(first)]
+            for h in order[: max(cfg.relocalise_hypotheses, 1)]:
                 h_map = lmap if h == b else self._match_map(int(h))
                 if not h_map.kind.size:
                     continue

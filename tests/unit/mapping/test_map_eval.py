@@ -59,6 +59,33 @@ def test_a_rotated_path_fits_the_truth_once_aligned_and_the_turn_drift_is_per_st
     out = trajectory_errors(est, truth)
     assert out["rmse_m"] > 0.1
     assert out["aligned_rmse_m"] < 1e-3
-    assert math.isclose(out["aligned_rotation_deg"], -2.0, abs_tol=1e-2)
+    assert math.isclose(out["aligned_rotation_deg"], 2.0, abs_tol=1e-2)  # the path's rotation
     assert out["per_stop_turn_drift_deg"] == [0.0, 4.0, 0.0]
     assert math.isclose(out["turn_drift_deg"], 4.0 / 3, abs_tol=0.01)
+
+
+def test_the_turn_drift_wraps_at_180_degrees_and_is_none_without_stops() -> None:
+    # one stop turning through +-180 degrees, its heading 1 degree ahead at the end
+    truth = np.zeros((5, 4))
+    truth[:, 0] = np.arange(5.0)
+    truth[:, 3] = np.radians([170.0, 175.0, 180.0, -175.0, -170.0])
+    est = truth.copy()
+    est[-1, 3] += np.radians(1.0)
+    est[:, 3] = (est[:, 3] + np.pi) % (2 * np.pi) - np.pi
+    out = trajectory_errors(est, truth)
+    assert out["per_stop_turn_drift_deg"] == [1.0]
+    assert math.isclose(out["turn_drift_deg"], 1.0, abs_tol=1e-9)
+    # a heading error of 179.5 degrees at the start and 180.5 (-179.5) at the end: the stop
+    # gained 1 degree, not -359
+    est = truth.copy()
+    est[0, 3] += np.radians(179.5)
+    est[-1, 3] += np.radians(180.5)
+    est[:, 3] = (est[:, 3] + np.pi) % (2 * np.pi) - np.pi
+    assert trajectory_errors(est, truth)["per_stop_turn_drift_deg"] == [1.0]
+    # a robot that drives all the time: every acquisition its own "stop", no turn drift
+    drive = np.zeros((20, 4))
+    drive[:, 0] = np.arange(20.0)
+    drive[:, 1] = 0.05 * np.arange(20)
+    moved = drive.copy()
+    moved[:, 3] += np.radians(0.5 * np.arange(20))
+    assert trajectory_errors(moved, drive)["turn_drift_deg"] is None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fusion_center.mapping.models import CORNER, POINT, WALL, predict
 from fusion_center.mapping.relocalise import (
@@ -189,3 +190,43 @@ def test_the_match_is_centred_on_the_odometry_prediction_not_on_one_random_draw(
             np.testing.assert_allclose(seen[0][0], drawn, atol=1e-12)
         # the draw is off the prediction by the motion noise of a 3 m drive
         assert np.hypot(*(drawn[:2] - expected[:2])) > 1e-4
+
+
+def test_several_hypotheses_from_the_prediction_are_distinct_particles() -> None:
+    # The drive's copies of one particle share its map and its noise-free prediction: with
+    # the match centred on the prediction, K hypotheses among copies would repeat one search.
+    from fusion_center.mapping import RbpfSlam, SlamConfig
+    from sim_nodes.robot_record import odometry_increments
+
+    room = rectangle_room()
+    poses = stop_and_turn_poses([[1.5, 1.5], [2.7, 1.3], [4.6, 3.6]], 15, np.radians(24.0))
+    rng = np.random.default_rng(3)
+    odo = odometry_increments(poses)
+    cfg = SlamConfig(
+        n_particles=10,
+        association="state",
+        seed=3,
+        range_sigma=0.03,
+        relocalise_distance=2.0,
+        relocalise_from_prediction=True,
+        relocalise_hypotheses=3,
+    )
+    slam = RbpfSlam(ANTENNAS, cfg)
+    search = slam.relocaliser.search
+    centres: list[np.ndarray] = []
+
+    def spy(center, cov, *args, _search=search, **kw):  # records, then searches
+        centres.append(np.array(center))
+        return _search(center, cov, *args, **kw)
+
+    slam.relocaliser.search = spy  # type: ignore[method-assign]
+    for k, pose in enumerate(poses):
+        if k:
+            slam.predict(1.0, odo[k])
+        slam.update(echo_pairs(room, pose, ANTENNAS, rng))
+    slam.flush()
+    assert len(centres) >= 3
+    first = np.array(centres[:3])
+    assert len(np.unique(first.round(12), axis=0)) == 3, first
+    with pytest.raises(ValueError, match="relocalise_from_prediction"):
+        SlamConfig(relocalise_from_prediction="false")  # type: ignore[arg-type]

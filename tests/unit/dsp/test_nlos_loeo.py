@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -14,6 +17,8 @@ from sim_nodes.channel.stochastic import (
 )
 from uwbnet.nlos_loeo import (
     ENVIRONMENTS,
+    cache_tag,
+    environment_sets,
     first_path_peak_rule,
     loeo_table,
 )
@@ -102,3 +107,19 @@ def test_outdoor_los_clusters_arrive_within_the_channel() -> None:
     rays = max(4, int(np.ceil(5.0 * OUTDOOR_LOS.ray_decay * OUTDOOR_LOS.ray_rate)))
     counts = [len(draw_channel(OUTDOOR_LOS, rng)[0]) - 1 for _ in range(40)]
     assert np.mean(counts) > 5 * rays
+
+
+def test_feature_cache_key_changes_with_what_shapes_the_features(tmp_path: Path) -> None:
+    los, nlos = ENVIRONMENTS["outdoor"]
+    classes = [(los, False), (nlos, True)]
+    tag = cache_tag(classes, (0.6, 1.6))
+    assert tag == cache_tag(list(classes), (0.6, 1.6))
+    assert tag != cache_tag(classes, (0.5, 2.0))
+    assert tag != cache_tag(classes, (0.6, 1.6), FEATURES[:-1])
+    assert tag != cache_tag([(replace(los, cluster_rate=0.0048), False), (nlos, True)], (0.6, 1.6))
+    # the sets' file names carry the tag: another decay randomisation draws new sets
+    environment_sets("outdoor", seed=3, n_train=2, n_test=2, cache=tmp_path)
+    first = {p.name for p in tmp_path.iterdir()}
+    assert len(first) == 2 and all(tag in name for name in first)
+    environment_sets("outdoor", seed=3, n_train=2, n_test=2, decay_factor=(1, 1), cache=tmp_path)
+    assert len({p.name for p in tmp_path.iterdir()} - first) == 2

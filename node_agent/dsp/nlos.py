@@ -292,8 +292,9 @@ def load_classifier(name: str = DEFAULT_MODEL) -> tuple[LogisticNlosClassifier, 
 # per class and radar, residential and office LOS and NLOS classes, four radars; features
 # ``SELECTED`` there). On those simulated channels it is right 80 % of the time, 77 % on
 # held-out ones (seed 2, other radars, other decay constants); the best single feature (mean
-# excess delay) 78 % and 74 %. Leave-one-environment-out (``python -m uwbnet.nlos_loeo``):
-# no retrained variant beat it. The signs are the physical ones: a weaker, earlier first
-# path, later energy and a flatter profile mean NLOS.
+# excess delay) 78 % and 74 %. Leave-one-environment-out (``python -m uwbnet.nlos_loeo``,
+# docs/localization.md): no variant is clearly better in the mean, and none is good; on the
+# industrial environment (unchecked CM7/CM8 figures) it is near chance. The signs are the
+# physical ones: a weaker, earlier first path, later energy and a flatter profile mean NLOS.
 DEFAULT_CLASSIFIER, DEFAULT_MODEL_VERSION = load_classifier()
 """The simulator-trained default rule of ``uwbnet ranging`` and its model version."""

@@ -136,11 +136,12 @@ OFFICE_NLOS = ChannelClass(
 # module's form. They widen the classifier's training domain beyond rooms (uwbnet.nlos_loeo).
 #
 # UNCHECKED: these figures were written from memory of the report's parameter table (Molisch
-# et al., IEEE P802.15-04-0662-02-004a, Nov. 2004), not read from the report or from its
-# reference MATLAB program, so they are not certified as the report's. A copy of the reference
-# program's parameter function (uwb_sv_params_15_4a, Sun Xu et al. of I2R, 14/09/2004,
-# "modified by I2R") agrees on CM5/CM6 but has another CM7/CM8 set (CM7 Gamma 3.1 ns,
-# k_gamma 0.21, gamma_0 0.15 ns; CM8 Gamma 5.83 ns, gamma_rise 4 ns, gamma_1 19.7 ns,
+# et al., IEEE P802.15-04-0662-02-004a, the final report with its MATLAB programs), not read
+# from the report or from its reference program, so they are not certified as the report's.
+# A copy of the reference program's parameter function (uwb_sv_params_15_4a, Sun Xu et al.
+# of I2R, 14/09/2004, "modified by I2R") agrees on CM5/CM6 and on CM7's Lambda, L and
+# cluster shadowing, but has another CM7/CM8 decay set (CM7 Gamma 3.1 ns, k_gamma 0.21,
+# gamma_0 0.15 ns; CM8 Lambda 0.089 /ns, Gamma 5.83 ns, gamma_rise 4 ns, gamma_1 19.7 ns,
 # chi 0.99, sigma_cluster 2.88 dB); which set the final report prints is not settled here.
 # Derivations into this module's form:
 # - one ray rate: the report's two-rate mixture (lambda_1, lambda_2, beta) replaced by one

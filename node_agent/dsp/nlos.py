@@ -37,6 +37,7 @@ were fitted by :mod:`uwbnet.nlos_training` on stochastic 802.15.4a-type LOS and 
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 
@@ -91,7 +92,13 @@ def channel_features(
     -------
     ndarray, float64, shape (rows, len(FEATURES))
         Columns as in :data:`FEATURES`: dB, ns, ns, ns, dB, dimensionless, dB, ns. NaN rows
-        where ``first`` is NaN.
+        where ``first`` is NaN. A row with a first path but an empty profile (no sample of
+        the window above :math:`4 \\sigma`) is not NaN: its energy ratios
+        (``fp_energy_db``, ``early_energy_db``) are 0 dB (0/0 taken as 1) and its delays
+        (``mean_excess_delay``, ``rms_delay_spread``, ``median_excess_delay``) 0 ns, the
+        values of a lone direct path. Callers that pass a ``first`` not detected above the
+        noise should set it to NaN (``uwbnet ranging`` passes NaN where its detector found
+        nothing).
     """
     rows, n = env.shape
     r = np.arange(rows)
@@ -165,6 +172,12 @@ class LogisticNlosClassifier:
         :math:`b`.
     clip : tuple of (float, float)
         Per feature, the range its value is clipped to before scoring.
+
+    Raises
+    ------
+    ValueError
+        On unequal lengths, unknown feature names, a scale that is not finite and > 0, a
+        mean, weight or bias that is not finite, or a clip range without ``lo < hi``.
     """
 
     features: tuple[str, ...]
@@ -181,6 +194,13 @@ class LogisticNlosClassifier:
         unknown = set(self.features) - set(FEATURES)
         if unknown:
             raise ValueError(f"unknown features {sorted(unknown)}")
+        # a NaN or zero scale makes every score NaN or infinite: every row silently NLOS
+        if not all(np.isfinite(v) and v > 0.0 for v in self.scale):
+            raise ValueError(f"scale must be finite and > 0, got {self.scale}")
+        if not np.all(np.isfinite([*self.mean, *self.weights, self.bias])):
+            raise ValueError("mean, weights and bias must be finite")
+        if not all(lo < hi for lo, hi in self.clip):
+            raise ValueError(f"each clip range must have lo < hi, got {self.clip}")
 
     def score(self, x: FloatArray) -> FloatArray:
         """Logit of NLOS, shape (rows,), from features ``x`` (rows, len(FEATURES))."""
@@ -206,6 +226,17 @@ DEFAULT_MODEL = "nlos_model.toml"
 """The packaged default classifier (``node_agent/dsp/nlos_model.toml``)."""
 
 
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _list_of(d: dict, key: str, check: Callable[[object], bool], what: str) -> list:
+    v = d.get(key)
+    if not isinstance(v, list) or not all(check(a) for a in v):
+        raise ValueError(f"classifier {key} must be a list of {what}, got {v!r}")
+    return v
+
+
 def classifier_from_dict(d: dict) -> LogisticNlosClassifier:
     """:class:`LogisticNlosClassifier` from a parsed model file (keys as in
     ``nlos_model.toml``: ``format``, ``version``, ``kind`` and the class's fields).
@@ -213,23 +244,38 @@ def classifier_from_dict(d: dict) -> LogisticNlosClassifier:
     Raises
     ------
     ValueError
-        On another format version, another kind or missing/inconsistent coefficients.
+        One line, on another format version or kind, a ``version`` that is not an integer
+        >= 1, a missing field or one of the wrong type (a string where a list belongs), or
+        inconsistent coefficients (see :class:`LogisticNlosClassifier`).
     """
     if d.get("format") != MODEL_FORMAT:
         raise ValueError(f"classifier format {d.get('format')!r}, expected {MODEL_FORMAT}")
     if d.get("kind") != "logistic":
         raise ValueError(f"classifier kind {d.get('kind')!r}, expected 'logistic'")
-    try:
-        return LogisticNlosClassifier(
-            features=tuple(str(f) for f in d["features"]),
-            mean=tuple(float(v) for v in d["mean"]),
-            scale=tuple(float(v) for v in d["scale"]),
-            weights=tuple(float(v) for v in d["weights"]),
-            bias=float(d["bias"]),
-            clip=tuple((float(a), float(b)) for a, b in d["clip"]),
-        )
-    except (KeyError, TypeError) as e:
-        raise ValueError(f"classifier file lacks or mangles {e}") from None
+    version = d.get("version")
+    if not (isinstance(version, int) and not isinstance(version, bool) and version >= 1):
+        raise ValueError(f"classifier version must be an integer >= 1, got {version!r}")
+    features = _list_of(d, "features", lambda a: isinstance(a, str), "feature names")
+    mean = _list_of(d, "mean", _is_number, "numbers")
+    scale = _list_of(d, "scale", _is_number, "numbers")
+    weights = _list_of(d, "weights", _is_number, "numbers")
+    clip = _list_of(
+        d,
+        "clip",
+        lambda a: isinstance(a, list) and len(a) == 2 and all(_is_number(b) for b in a),
+        "[lo, hi] pairs",
+    )
+    bias = d.get("bias")
+    if not _is_number(bias):
+        raise ValueError(f"classifier bias must be a number, got {bias!r}")
+    return LogisticNlosClassifier(
+        features=tuple(features),
+        mean=tuple(float(v) for v in mean),
+        scale=tuple(float(v) for v in scale),
+        weights=tuple(float(v) for v in weights),
+        bias=float(bias),
+        clip=tuple((float(a), float(b)) for a, b in clip),
+    )
 
 
 def load_classifier(name: str = DEFAULT_MODEL) -> tuple[LogisticNlosClassifier, int]:
@@ -239,15 +285,16 @@ def load_classifier(name: str = DEFAULT_MODEL) -> tuple[LogisticNlosClassifier, 
     here (the core stays free of I/O of its own)."""
     text = resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
     d = tomllib.loads(text)
-    return classifier_from_dict(d), int(d["version"])
+    return classifier_from_dict(d), d["version"]
 
 
 # The default was fitted by ``python -m uwbnet.nlos_training`` (training seed 1: 250 channels
 # per class and radar, residential and office LOS and NLOS classes, four radars; features
 # ``SELECTED`` there). On those simulated channels it is right 80 % of the time, 77 % on
 # held-out ones (seed 2, other radars, other decay constants); the best single feature (mean
-# excess delay) 78 % and 74 %. Leave-one-environment-out (``python -m uwbnet.nlos_loeo``):
-# no retrained variant beat it. The signs are the physical ones: a weaker, earlier first
-# path, later energy and a flatter profile mean NLOS.
+# excess delay) 78 % and 74 %. Leave-one-environment-out (``python -m uwbnet.nlos_loeo``,
+# docs/localization.md): no variant is clearly better in the mean, and none is good; on the
+# industrial environment (unchecked CM7/CM8 figures) it is near chance. The signs are the
+# physical ones: a weaker, earlier first path, later energy and a flatter profile mean NLOS.
 DEFAULT_CLASSIFIER, DEFAULT_MODEL_VERSION = load_classifier()
 """The simulator-trained default rule of ``uwbnet ranging`` and its model version."""

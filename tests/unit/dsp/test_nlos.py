@@ -11,6 +11,7 @@ from node_agent.dsp.nlos import (
     FEATURES,
     MODEL_FORMAT,
     LogisticNlosClassifier,
+    channel_features,
     classifier_from_dict,
     load_classifier,
 )
@@ -115,25 +116,87 @@ def test_early_energy_and_median_delay_of_an_obstructed_first_path(
     assert np.all(los[:, COL["median_excess_delay"]] < 1.5)
 
 
-def test_packaged_model_is_versioned_and_checked() -> None:
+# Every released model version and its coefficients. Changing nlos_model.toml without
+# bumping its version fails here; a new version adds its entry.
+RELEASED_MODELS = {
+    1: LogisticNlosClassifier(
+        features=("fp_to_peak_db", "rise_time", "mean_excess_delay", "kurtosis"),
+        mean=(-2.346, 6.893, 13.61, 12.33),
+        scale=(3.4, 9.869, 9.24, 11.49),
+        weights=(-0.9068, 0.01131, 0.995, -2.29),
+        bias=-0.3361,
+        clip=((-30.0, 0.0), (0.0, 60.0), (0.0, 80.0), (1.0, 60.0)),
+    ),
+}
+
+
+def test_packaged_model_matches_its_released_version() -> None:
     clf, version = load_classifier()
-    assert clf == DEFAULT_CLASSIFIER
-    assert version == DEFAULT_MODEL_VERSION >= 1
-    d = {
-        "format": MODEL_FORMAT,
-        "version": 7,
-        "kind": "logistic",
-        "features": ["rise_time"],
-        "mean": [1.0],
-        "scale": [2.0],
-        "weights": [0.5],
-        "bias": -1.0,
-        "clip": [[0.0, 60.0]],
-    }
-    assert classifier_from_dict(d).weights == (0.5,)
-    with pytest.raises(ValueError, match="format"):
-        classifier_from_dict({**d, "format": MODEL_FORMAT + 1})
-    with pytest.raises(ValueError, match="kind"):
-        classifier_from_dict({**d, "kind": "forest"})
-    with pytest.raises(ValueError, match="lacks"):
-        classifier_from_dict({k: v for k, v in d.items() if k != "bias"})
+    assert (clf, version) == (DEFAULT_CLASSIFIER, DEFAULT_MODEL_VERSION)
+    assert version in RELEASED_MODELS, f"model version {version} has no RELEASED_MODELS entry"
+    assert clf == RELEASED_MODELS[version]
+
+
+MODEL = {
+    "format": MODEL_FORMAT,
+    "version": 7,
+    "kind": "logistic",
+    "features": ["rise_time"],
+    "mean": [1.0],
+    "scale": [2.0],
+    "weights": [0.5],
+    "bias": -1.0,
+    "clip": [[0.0, 60.0]],
+}
+
+
+def test_model_loader_reads_a_valid_model() -> None:
+    clf = classifier_from_dict(MODEL)
+    assert (clf.features, clf.mean, clf.scale) == (("rise_time",), (1.0,), (2.0,))
+    assert (clf.weights, clf.bias, clf.clip) == ((0.5,), -1.0, ((0.0, 60.0),))
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"format": MODEL_FORMAT + 1}, "format"),
+        ({"kind": "forest"}, "kind"),
+        ({"version": None}, "version must be an integer >= 1"),
+        ({"version": 1.9}, "version must be an integer >= 1"),
+        ({"version": 0}, "version must be an integer >= 1"),
+        ({"version": True}, "version must be an integer >= 1"),
+        ({"version": "1"}, "version must be an integer >= 1"),
+        ({"features": "rise_time"}, "features must be a list of feature names"),
+        ({"mean": "1234"}, "mean must be a list of numbers"),
+        ({"weights": ["0.5"]}, "weights must be a list of numbers"),
+        ({"bias": None}, "bias must be a number"),
+        ({"clip": [0.0, 60.0]}, r"clip must be a list of \[lo, hi\] pairs"),
+        ({"scale": [0.0]}, "scale must be finite and > 0"),
+        ({"scale": [-2.0]}, "scale must be finite and > 0"),
+        ({"scale": [float("nan")]}, "scale must be finite and > 0"),
+        ({"mean": [float("inf")]}, "must be finite"),
+        ({"weights": [float("nan")]}, "must be finite"),
+        ({"bias": float("nan")}, "must be finite"),
+        ({"clip": [[60.0, 0.0]]}, "lo < hi"),
+        ({"clip": [[0.0, float("nan")]]}, "lo < hi"),
+        ({"features": ["colour"]}, "unknown features"),
+        ({"mean": [1.0, 2.0]}, "equal lengths"),
+    ],
+)
+def test_model_loader_rejects_a_bad_model_in_one_line(change: dict, message: str) -> None:
+    d = {**MODEL, **{k: v for k, v in change.items() if v is not None}}
+    for k, v in change.items():
+        if v is None:
+            del d[k]  # a missing key
+    with pytest.raises(ValueError, match=message) as e:
+        classifier_from_dict(d)
+    assert "\n" not in str(e.value)
+
+
+def test_features_of_a_first_path_without_profile_energy() -> None:
+    # a first path given where nothing exceeds 4 sigma: zeros, not NaN (see the docstring)
+    env = np.full((2, 400), 0.5)
+    f = channel_features(env, np.ones(2), np.array([100.0, np.nan]), fs=1e9, bandwidth=5e8)
+    for name in ("fp_energy_db", "early_energy_db", "mean_excess_delay", "median_excess_delay"):
+        assert f[0, COL[name]] == 0.0, name
+    assert np.all(np.isnan(f[1]))

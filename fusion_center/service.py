@@ -3,10 +3,12 @@
 Holds the TDMA schedule (published on change and served by a queryable), follows node presence
 through liveliness tokens, fetches ``node_info`` from the nodes' queryables, and publishes
 ``tracks`` after every processed frame. One worker thread does the work: ``detections``,
-``node_info`` and ``status`` samples wait in zenoh's own channels (no Python callback per
+``node_info`` and ``status`` samples wait in zenoh's own ring channels (no Python callback per
 message) and the worker takes all that arrived at each of its wake-ups, every ``poll_period``
 (docs/capacity.md, "Ninth round, hub side"); the rare control inputs (liveliness, replies of
-``node_info`` queries) come through callbacks that only enqueue.
+``node_info`` queries) come through callbacks that only enqueue. Within one wake-up the inputs
+are handled by kind (control, ``node_info``, ``status``, ``detections``), not in arrival order:
+an updated ``node_info`` may apply to detections that came up to ``poll_period`` before it.
 """
 
 from __future__ import annotations
@@ -64,7 +66,10 @@ class FusionConfig:
         (zenoh's channels, drained without a Python callback or a thread wake-up per message).
         Adds up to this much latency; 5 ms is a quarter of a TDMA frame.
     channel_capacity : samples a zenoh channel holds for the worker; when it is full (the
-        worker that far behind) zenoh holds back the sender's link instead of losing them.
+        worker that far behind) the oldest are dropped: a ring, never blocking zenoh's
+        network thread (a blocking FIFO there stalled the whole router and, after zenoh's
+        5 s block timeout, closed the nodes' links). Lost detections are counted per node
+        from the gaps in their ``seq`` (``NodeHealth.missing``).
     core : frame assembly parameters.
     localization : localization of mobile nodes from their ranging rounds (``poses``).
     imaging : live imaging of the nodes' ``ir`` (off unless ``imaging.rate > 0``), in its own
@@ -108,6 +113,9 @@ class NodeHealth:
     detections: int = 0
     last_det_t: float = math.nan
     latency_ms: float = math.nan
+    #: detections messages never received: gaps in the node's ``seq`` (dropped in transit
+    #: or by a full channel of a worker that fell behind)
+    missing: int = 0
 
 
 class FusionService:
@@ -130,8 +138,10 @@ class FusionService:
         self._inbox: FifoChannel[tuple[str, str, bytes]] = FifoChannel(8192)
         #: (leaf, subscriber with a zenoh channel) drained by the worker, ``info`` first.
         self._channels: list[tuple[str, Any]] = []
-        #: Detections per node since the last health update: [count, latest t].
+        #: Detections per node since the last health update: [count, latest t, seq gaps].
         self._det_batch: dict[str, list[Any]] = {}
+        #: the last detections ``seq`` seen per node
+        self._det_seq: dict[str, int] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._decl: list[Any] = []
@@ -190,7 +200,7 @@ class FusionService:
                 # zenoh's channel: its network thread queues the sample without Python's lock
                 # and the worker takes them in batches; a Python callback costs a thread
                 # wake-up, the lock and a queue per message (docs/capacity.md, ninth round)
-                sub = s.declare_subscriber(expr, zenoh.handlers.FifoChannel(cfg.channel_capacity))
+                sub = s.declare_subscriber(expr, zenoh.handlers.RingChannel(cfg.channel_capacity))
                 self._decl.append(sub)
                 self._channels.append((leaf, sub))
         self._decl.append(
@@ -297,14 +307,19 @@ class FusionService:
         period, flush_after = self.config.poll_period, self.config.flush_after
         last_item = next_wake = time.monotonic()
         while not self._stop.is_set():
-            taken = self._drain()
             now = time.monotonic()
-            if taken:
-                last_item = now
-            elif now - last_item >= flush_after:
-                self._publish(self.core.flush())
-                last_item = now
-            self._fetch_infos()
+            try:
+                taken = self._drain()
+                now = time.monotonic()
+                if taken:
+                    last_item = now
+                elif now - last_item >= flush_after:
+                    self._publish(self.core.flush())
+                    last_item = now
+                self._fetch_infos()
+            except Exception:  # a bug costs one wake-up, not the worker (inputs would pile up)
+                self.handler_errors += 1
+                log.exception("fusion worker wake-up failed")
             next_wake = max(next_wake + period, now)
             delay = next_wake - time.monotonic()
             if delay > 0.0:
@@ -313,6 +328,7 @@ class FusionService:
     def _drain(self) -> int:
         """Handle every input that arrived since the last wake-up; how many there were."""
         taken = 0
+        t_drain = self.clock()  # detections' latency: until taken, not until the batch is done
         if len(self._inbox):
             for leaf, key, payload in self._inbox.drain():
                 taken += 1
@@ -327,7 +343,7 @@ class FusionService:
                 taken += 1
                 self._guarded(leaf, sample, None)
         if self._det_batch:
-            self._note_detections()
+            self._note_detections(t_drain)
         return taken
 
     def _guarded(self, leaf: str, key: Any, payload: bytes | None) -> None:
@@ -344,19 +360,19 @@ class FusionService:
             self.handler_errors += 1
             log.exception("failed on %s", _key(key))
 
-    def _note_detections(self) -> None:
-        """Node health from the detections of one wake-up: counts, latest ``t`` and the
-        latency (s since acquisition when the batch was handled, ms)."""
+    def _note_detections(self, now: float) -> None:
+        """Node health from the detections of one wake-up: counts, latest ``t``, the latency
+        (ms from acquisition to the wake-up that took the message) and the ``seq`` gaps."""
         batch, self._det_batch = self._det_batch, {}
-        now = self.clock()
         with self._lock:
-            for src, (count, t) in batch.items():
+            for src, (count, t, gaps) in batch.items():
                 h = self.health.get(src)
                 if h is None:
                     h = self.health[src] = NodeHealth()
                 h.detections += count
                 h.last_det_t = t
                 h.latency_ms = (now - t) * 1e3
+                h.missing += gaps
 
     def _handle(self, leaf: str, key: Any, payload: bytes) -> None:
         if leaf == "alive":
@@ -366,12 +382,19 @@ class FusionService:
         if leaf == "det" and isinstance(msg, Detections):
             if msg.src not in self.core.nodes:
                 self._want_info.add(msg.src)
+            last = self._det_seq.get(msg.src)
+            # a gap in seq: messages lost; a restarted node begins at 0 again (no gap), and
+            # a late duplicate or reordered message does not move the mark back
+            gap = msg.seq - last - 1 if last is not None and msg.seq > last + 1 else 0
+            if last is None or msg.seq > last or msg.seq == 0:
+                self._det_seq[msg.src] = msg.seq
             seen = self._det_batch.get(msg.src)
             if seen is None:
-                self._det_batch[msg.src] = [1, msg.t]
+                self._det_batch[msg.src] = [1, msg.t, gap]
             else:
                 seen[0] += 1
                 seen[1] = msg.t
+                seen[2] += gap
             if msg.links is not None:
                 self._publish_pose(self.pose_core.add_ranging(msg))
                 # anchors ranged before their description arrived: ask their queryables

@@ -234,7 +234,7 @@ def bench_hub(seed: int = 1) -> dict[str, Any]:
     (``uwbnet.bench_hub``)."""
     from uwbnet.bench_hub import run
 
-    return {"bench": "hub", **run(seed=seed or 1), **_machine()}
+    return {"bench": "hub", **run(seed=seed), **_machine()}
 
 
 def bench_web(seed: int = 0) -> dict[str, Any]:

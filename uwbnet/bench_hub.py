@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -166,7 +167,10 @@ def run_one(n: int, seconds: float = 8.0, warmup: float = 2.0, seed: int = 1) ->
         except subprocess.TimeoutExpired:
             hub.kill()
             hub.wait(5.0)
-    figures |= _outcome(out, figures.pop("window"), n)
+    try:
+        figures |= _outcome(out, figures.pop("window"), n)
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
     return {"nodes": n, **figures}
 
 

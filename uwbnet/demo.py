@@ -346,6 +346,7 @@ def run_demo(config: DemoConfig, console: Console | None = None) -> dict[str, An
             "estimates_beyond_range": fusion.core.counters.beyond_range,
             "decode_errors": fusion.decode_errors,
             "handler_errors": fusion.handler_errors,
+            "missing_detections": sum(h.missing for h in health.values()),
             "acquired": sum(h.last_status.acquired for h in health.values() if h.last_status),
             "late_slots": sum(h.last_status.late_slots for h in health.values() if h.last_status),
             "final_tracks": len(out.tracks) if out else 0,

@@ -76,8 +76,13 @@ class WallSightModel:
         """``factor ** crossings`` of the sight lines ``origins[k]`` -> ``xy[k]`` (both (K, 2)),
         shape (K,): :meth:`__call__` for many (sensor, position) pairs at once (a frame's
         components in the views of all its sensors)."""
-        o = np.asarray(origins, float).reshape(-1, 2)
         p = np.asarray(xy, float).reshape(-1, 2)
+        # one origin for all sight lines broadcasts (the compiled loop indexes it per line)
+        o = np.asarray(origins, float).reshape(-1, 2)
+        if o.shape[0] == 1 and p.shape[0] != 1:
+            o = np.repeat(o, p.shape[0], axis=0)
+        elif o.shape != p.shape:
+            raise ValueError(f"origins {o.shape} and xy {p.shape} do not pair up")
         if p.shape[0] == 0 or self.start.shape[0] == 0:
             return np.ones(p.shape[0])
         if self.compiled:

@@ -86,3 +86,79 @@ def test_the_poll_period_and_channel_capacity_are_checked() -> None:
         FusionConfig(poll_period=float("nan"))
     with pytest.raises(ValueError, match="channel_capacity"):
         FusionConfig(channel_capacity=0)
+
+
+def test_a_worker_far_behind_drops_its_oldest_and_never_stalls_the_router() -> None:
+    """The fusion center runs in the network's router (``uwbnet scale``, ``uwbnet fusion``):
+    its channels must never block zenoh's network thread. A worker that takes its inputs only
+    once a second from channels of 4 samples, flooded by detections, loses the oldest
+    (counted per node from the ``seq`` gaps) while unrelated traffic between two other
+    clients is still routed. (A blocking FIFO channel routed 0 of 20 there.)"""
+    from protocol.transport import free_tcp_port
+
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    infos = node_infos(2)
+    payloads = synthetic_detections(
+        infos, 300, np.array([[5.0, 4.0]]), np.array([[0.5, 0.0]]),
+        t0=time.time() - 6.0, rng=np.random.default_rng(4),
+    )  # fmt: skip
+    with contextlib.ExitStack() as stack:
+        router = stack.enter_context(zenoh.open(session_config(mode="router", listen=[endpoint])))
+        cfg = FusionConfig(net=NET, poll_period=1.0, channel_capacity=4)
+        fusion = FusionService(router, cfg)
+        fusion.start()
+        stack.callback(fusion.stop)
+
+        def client() -> zenoh.Session:
+            return stack.enter_context(
+                zenoh.open(session_config(mode="client", connect=[endpoint]))
+            )
+
+        node, b, c = client(), client(), client()
+        for info in infos:
+            node.put(keys.node_key(NET, info.src, "info"), info.to_wire())
+        _wait_for(lambda: len(fusion.node_infos()) == len(infos), 10.0, "node_info")
+        routed: dict[int, float] = {}
+        c.declare_subscriber(
+            f"{NET}/viewer/x", lambda s: routed.setdefault(int(s.payload.to_bytes()), time.time())
+        )
+        time.sleep(0.3)
+        pubs = [
+            node.declare_publisher(
+                keys.node_key(NET, i.src, "det"), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            for i in infos
+        ]
+        for k in range(len(infos)):  # the first frame, taken: the seq marks to count from
+            pubs[k].put(payloads[k])
+        _wait_for(lambda: len(fusion.snapshot()[1]) == len(infos), 5.0, "the first frame")
+        done = threading.Event()
+
+        def flood() -> None:
+            for k, payload in enumerate(payloads[len(infos) :], start=len(infos)):
+                pubs[k % len(infos)].put(payload)
+                if k % 20 == 19:
+                    time.sleep(0.005)
+            done.set()
+
+        flooder = threading.Thread(target=flood, daemon=True)
+        flooder.start()
+        time.sleep(0.2)
+        sent = {}
+        for k in range(20):  # while the flood fills the worker's channels
+            sent[k] = time.time()
+            b.put(f"{NET}/viewer/x", str(k).encode())
+            time.sleep(0.02)
+        _wait_for(lambda: len(routed) == 20, 3.0, "the unrelated samples routed")
+        # at once, not at the worker's next wake-up (up to 1 s with a blocking channel)
+        delays = [routed[k] - sent[k] for k in sent]
+        assert max(delays) < 0.5, delays
+        assert done.wait(10.0), "the flooding node was blocked"
+        time.sleep(2.2)  # the worker's next wake-ups
+        health = fusion.snapshot()[1]
+    taken = sum(h.detections for h in health.values())
+    missing = sum(h.missing for h in health.values())
+    assert missing > 0, health  # the oldest were dropped, and counted
+    assert taken + missing <= len(payloads), (taken, missing)
+    assert fusion.handler_errors == 0

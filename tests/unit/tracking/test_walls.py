@@ -108,3 +108,8 @@ def test_compiled_pairs_count_the_walls_of_the_numpy_reference() -> None:
     want = model.pairs(o, p)
     np.testing.assert_array_equal(fast, want)
     assert (want < 1.0).sum() > k // 10 and (want == 1.0).sum() > k // 10
+    # one origin for every sight line broadcasts in both (the compiled loop read past it)
+    want_one = model.pairs(o[:1], p[:50])
+    model.compiled = True
+    np.testing.assert_array_equal(model.pairs(o[:1], p[:50]), want_one)
+    np.testing.assert_array_equal(want_one, model.pairs(np.repeat(o[:1], 50, 0), p[:50]))

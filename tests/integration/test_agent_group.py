@@ -25,18 +25,11 @@ from protocol.transport import FifoChannel, session_config
 from sim_nodes.driver import SimulatedDriver
 from sim_nodes.network import SimNetwork
 from sim_nodes.scene import load_scenario
+from tests.waiting import wait_for as _wait_for
 
 pytestmark = pytest.mark.integration
 
 NET = "grouptest"
-
-
-def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.02)
 
 
 @pytest.mark.parametrize(("batch_window", "per_wake"), [(0.0, 1), (0.01, 1), (0.01, 2)])

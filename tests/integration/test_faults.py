@@ -18,6 +18,7 @@ from protocol.transport import session_config
 from sim_nodes.driver import SimulatedDriver
 from sim_nodes.network import SimNetwork
 from sim_nodes.scene import load_scenario
+from tests.waiting import wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.faults]
 
@@ -26,12 +27,7 @@ NET = "ftest"
 
 def _wait_for(predicate, timeout: float, what: str) -> float:  # type: ignore[no-untyped-def]
     """Wait until ``predicate()``; returns the seconds it took."""
-    t0 = time.monotonic()
-    while not predicate():
-        if time.monotonic() - t0 > timeout:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        threading.Event().wait(0.005)
-    return time.monotonic() - t0
+    return wait_for(predicate, timeout, what, poll=0.005)
 
 
 @pytest.fixture(scope="module")

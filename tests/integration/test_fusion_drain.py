@@ -17,20 +17,12 @@ import zenoh
 from fusion_center.service import FusionConfig, FusionService
 from protocol import Status, decode, keys
 from protocol.transport import session_config
+from tests.waiting import wait_for as _wait_for
 from uwbnet.bench_hub import node_infos, synthetic_detections
 
 pytestmark = pytest.mark.integration
 
 NET = "draintest"
-
-
-def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    event = threading.Event()
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        event.wait(0.02)
 
 
 def test_a_burst_of_detections_is_fused_and_bad_messages_are_counted(hub_endpoint) -> None:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import threading
 import time
 
 import msgpack
@@ -22,19 +21,11 @@ from protocol.transport import FifoChannel, session_config
 from sim_nodes.driver import SimulatedDriver
 from sim_nodes.network import SimNetwork
 from sim_nodes.scene import load_scenario
+from tests.waiting import wait_for as _wait_for
 
 pytestmark = pytest.mark.integration
 
 NET = "itest"
-
-
-def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    event = threading.Event()
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        event.wait(0.02)
 
 
 @pytest.fixture

@@ -25,6 +25,7 @@ from protocol import keys
 from protocol.transport import FifoChannel, free_tcp_port
 from sim_nodes.driver import SimulatedDriver
 from sim_nodes.network import SimNetwork
+from tests.waiting import wait_for as _wait_for
 from uwbnet.config import ZenohModel, zenoh_config
 
 pytestmark = [pytest.mark.integration, pytest.mark.security]
@@ -51,14 +52,6 @@ def _tls(certs: Path, name: str, ca: str = "net") -> dict[str, str]:
         "cert": str(base / f"{name}.pem"),
         "key": str(base / f"{name}.key"),
     }
-
-
-def _wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        threading.Event().wait(0.02)
 
 
 def test_only_member_certificates_can_publish_detections_or_read_tracks(certs):

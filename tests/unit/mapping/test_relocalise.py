@@ -144,26 +144,33 @@ def test_the_relocalisation_matches_with_its_own_range_noise() -> None:
     assert strict.explained(pose, rel, pairs, lmap) == 0
 
 
+def _three_stops(**config):  # type: ignore[no-untyped-def]
+    """A rectangle room, three stops of 15 headings (turns of 24 degrees), a drive of about
+    3 m to the last (a relocalisation), exact odometry (only the filter's motion noise
+    remains), the echo generator and the filter's configuration with ``config``."""
+    from fusion_center.mapping import SlamConfig
+    from sim_nodes.robot_record import odometry_increments
+
+    poses = stop_and_turn_poses([[1.5, 1.5], [2.7, 1.3], [4.6, 3.6]], 15, np.radians(24.0))
+    cfg = SlamConfig(
+        n_particles=10,
+        association="state",
+        seed=3,
+        range_sigma=0.03,
+        relocalise_distance=2.0,
+        **config,
+    )
+    return rectangle_room(), poses, np.random.default_rng(3), odometry_increments(poses), cfg
+
+
 def test_the_match_is_centred_on_the_odometry_prediction_not_on_one_random_draw() -> None:
     # After a drive every particle is one draw of the motion model; centring the match (its
     # grid and its prior) on the heaviest particle put it up to a standard deviation of the
     # drive's spread off. It is centred on that particle's noise-free odometry prediction.
-    from fusion_center.mapping import RbpfSlam, SlamConfig
-    from sim_nodes.robot_record import odometry_increments
+    from fusion_center.mapping import RbpfSlam
 
     for from_prediction in (True, False):
-        room = rectangle_room()
-        poses = stop_and_turn_poses([[1.5, 1.5], [2.7, 1.3], [4.6, 3.6]], 15, np.radians(24.0))
-        rng = np.random.default_rng(3)
-        odo = odometry_increments(poses)  # exact: only the filter's motion noise remains
-        cfg = SlamConfig(
-            n_particles=10,
-            association="state",
-            seed=3,
-            range_sigma=0.03,
-            relocalise_distance=2.0,
-            relocalise_from_prediction=from_prediction,
-        )
+        room, poses, rng, odo, cfg = _three_stops(relocalise_from_prediction=from_prediction)
         slam = RbpfSlam(ANTENNAS, cfg)
         search = slam.relocaliser.search
         seen: list[tuple[np.ndarray, np.ndarray]] = []
@@ -196,20 +203,9 @@ def test_several_hypotheses_from_the_prediction_are_distinct_particles() -> None
     # The drive's copies of one particle share its map and its noise-free prediction: with
     # the match centred on the prediction, K hypotheses among copies would repeat one search.
     from fusion_center.mapping import RbpfSlam, SlamConfig
-    from sim_nodes.robot_record import odometry_increments
 
-    room = rectangle_room()
-    poses = stop_and_turn_poses([[1.5, 1.5], [2.7, 1.3], [4.6, 3.6]], 15, np.radians(24.0))
-    rng = np.random.default_rng(3)
-    odo = odometry_increments(poses)
-    cfg = SlamConfig(
-        n_particles=10,
-        association="state",
-        seed=3,
-        range_sigma=0.03,
-        relocalise_distance=2.0,
-        relocalise_from_prediction=True,
-        relocalise_hypotheses=3,
+    room, poses, rng, odo, cfg = _three_stops(
+        relocalise_from_prediction=True, relocalise_hypotheses=3
     )
     slam = RbpfSlam(ANTENNAS, cfg)
     search = slam.relocaliser.search

@@ -53,7 +53,8 @@ def test_three_walkers_two_crossing(rng: np.random.Generator) -> None:
         assert before is not None and before == after
 
 
-def test_target_outside_view_keeps_weight(rng: np.random.Generator) -> None:
+def _looking_and_away() -> tuple[Sensor, Sensor]:
+    """Sensor ``a`` at the origin looking at (3, 3) m; ``b`` at (10, 0) m looking away."""
     looking = Sensor(
         name="a",
         origin=np.array([0.0, 0.0]),
@@ -68,6 +69,11 @@ def test_target_outside_view_keeps_weight(rng: np.random.Generator) -> None:
         beamwidth=math.radians(100),
         max_range=12.0,
     )
+    return looking, away
+
+
+def test_target_outside_view_keeps_weight(rng: np.random.Generator) -> None:
+    looking, away = _looking_and_away()
     still = np.tile(np.array([[3.0, 3.0]]), (50, 1, 1))
     tracker, outputs = run_tracker(rng, still, [looking])
     assert len(outputs[-1].tracks) == 1
@@ -79,33 +85,27 @@ def test_target_outside_view_keeps_weight(rng: np.random.Generator) -> None:
     assert later[-1].tracks[0].w == pytest.approx(w_before, rel=0.02)
 
 
-def test_confirmed_track_below_keep_is_coasted_for_coast_time(rng: np.random.Generator) -> None:
-    """A confirmed track whose weight fell below ``keep_threshold`` (no sensor sees it now, so
-    it keeps that weight) is reported for ``coast_time`` (0.5 s since stop 21), then not."""
-    looking = Sensor(
-        name="a",
-        origin=np.array([0.0, 0.0]),
-        boresight=math.pi / 4,
-        beamwidth=math.radians(100),
-        max_range=12.0,
-    )
-    away = Sensor(
-        name="b",
-        origin=np.array([10.0, 0.0]),
-        boresight=0.0,
-        beamwidth=math.radians(100),
-        max_range=12.0,
-    )
+def _faded_confirmed_track(rng: np.random.Generator):  # type: ignore[no-untyped-def]
+    """A person standing at (3, 3) m tracked by sensor ``a`` for 50 frames, then its label's
+    weight set to 0.3 (below ``keep_threshold``); sensor ``b`` looks away from it. Returns
+    the tracker, the track, ``b`` and the last output's time."""
+    looking, away = _looking_and_away()
     still = np.tile(np.array([[3.0, 3.0]]), (50, 1, 1))
     tracker, outputs = run_tracker(rng, still, [looking])
     (track,) = outputs[-1].tracks
-    assert tracker.config.coast_time == 0.5
     tracker._mix.w *= 0.3 / tracker._mix.w[tracker._mix.label == track.id].sum()
-    t0 = outputs[-1].t
+    return tracker, track, away, outputs[-1].t
+
+
+def test_confirmed_track_below_keep_is_coasted_for_coast_time(rng: np.random.Generator) -> None:
+    """A confirmed track whose weight fell below ``keep_threshold`` (no sensor sees it now, so
+    it keeps that weight) is reported for ``coast_time`` (0.5 s since stop 21), then not."""
+    tracker, track, away, t0 = _faded_confirmed_track(rng)
+    assert tracker.config.coast_time == 0.5
     reported = {}
     for k in range(1, 40):
         t = t0 + k * FRAME
-        out = tracker.step(t, [detect(rng, away, t, still[0][:0], clutter=0.0)])
+        out = tracker.step(t, [detect(rng, away, t, np.zeros((0, 2)), clutter=0.0)])
         reported[round(k * FRAME, 3)] = [tr.id for tr in out.tracks]
     assert all(ids == [track.id] for dt, ids in reported.items() if dt <= 0.46), reported
     assert all(ids == [] for dt, ids in reported.items() if dt >= 0.54), reported
@@ -114,29 +114,12 @@ def test_confirmed_track_below_keep_is_coasted_for_coast_time(rng: np.random.Gen
 def test_coast_ends_when_the_clock_steps_back(rng: np.random.Generator) -> None:
     """Coasting is timed on elapsed time: a clock that steps back 10 s (a replay restarted
     without ``reset``) or stands still does not keep a faded track reported for ever."""
-    looking = Sensor(
-        name="a",
-        origin=np.array([0.0, 0.0]),
-        boresight=math.pi / 4,
-        beamwidth=math.radians(100),
-        max_range=12.0,
-    )
-    away = Sensor(
-        name="b",
-        origin=np.array([10.0, 0.0]),
-        boresight=0.0,
-        beamwidth=math.radians(100),
-        max_range=12.0,
-    )
-    still = np.tile(np.array([[3.0, 3.0]]), (50, 1, 1))
-    tracker, outputs = run_tracker(rng, still, [looking])
-    (track,) = outputs[-1].tracks
-    tracker._mix.w *= 0.3 / tracker._mix.w[tracker._mix.label == track.id].sum()
-    t0 = outputs[-1].t - 10.0  # the clock steps back
+    tracker, track, away, t_last = _faded_confirmed_track(rng)
+    t0 = t_last - 10.0  # the clock steps back
     reported = []
     for k in range(1, 40):
         t = t0 + k * FRAME
-        out = tracker.step(t, [detect(rng, away, t, still[0][:0], clutter=0.0)])
+        out = tracker.step(t, [detect(rng, away, t, np.zeros((0, 2)), clutter=0.0)])
         reported.append([tr.id for tr in out.tracks if tr.id == track.id])
     assert reported[0] == [track.id], reported
     assert reported[-1] == [], reported

@@ -23,9 +23,12 @@ from node_agent.drivers.base import DriverError, RadarDriver
 from node_agent.dsp.pipeline import NodeDspConfig
 from node_agent.tdma import SlotTiming, next_slot
 from protocol import Ir, NodeInfo, ProtocolError, Status, TdmaSchedule, keys
-from protocol.transport import FifoChannel, RingChannel, stop_worker
+from protocol.transport import RingChannel, stop_worker
 
 log = logging.getLogger(__name__)
+
+#: Seconds between schedule queries of a node that has one (see :meth:`NodeAgent.next_slot`).
+SCHEDULE_REFRESH = 5.0
 
 #: Upper edges (ms) of the bins of the acquisition lateness histogram in ``status.extra``
 #: (``lateness_ms``: counts per bin, the last bin open-ended): how long after its slot start an
@@ -80,7 +83,10 @@ class NodeAgent:
             (f"{config.node}/{name}" for name, a in self.info.antennas.items() if a.tx), None
         )
         self.core = NodeCore(self.info, config.dsp)
-        self._schedule_in: FifoChannel[bytes] = FifoChannel(16)
+        # the newest schedules: while many nodes join, one is published per join, faster than
+        # a busy worker takes them; a FIFO that rejects the newest when full left nodes on a
+        # stale schedule for good (two nodes in one slot: 56-node scale runs lost 1/56)
+        self._schedule_in: RingChannel[bytes] = RingChannel(16)
         # Acquisition never waits for the network: messages go through a bounded queue to a
         # publisher thread; when a stuck link or consumer backs it up, the oldest are dropped
         # and counted (``status.dropped``, ``extra.queue_dropped``).
@@ -208,7 +214,9 @@ class NodeAgent:
     # -- worker ----------------------------------------------------------------------------
 
     def _take_schedule(self) -> bool:
-        """Take the schedules received; True if one was taken."""
+        """Take the newest of the schedules received; True if it replaced ours. A schedule is
+        newer with a higher ``seq``, a later ``t`` (its service restarted) or from another
+        service; a query's late reply with an older one must not undo a published change."""
         taken = False
         for payload in self._schedule_in.drain():
             try:
@@ -217,8 +225,10 @@ class NodeAgent:
                 self.counters["decode_errors"] += 1
                 log.warning("node %s: rejected schedule: %s", self.config.node, exc)
                 continue
-            self._schedule = sched
-            taken = True
+            cur = self._schedule
+            if cur is None or sched.src != cur.src or sched.seq > cur.seq or sched.t > cur.t:
+                self._schedule = sched
+                taken = True
         return taken
 
     def _query_schedule(self) -> None:
@@ -252,7 +262,10 @@ class NodeAgent:
                     break
                 slot = next_slot(self._schedule, self.tx, slot.t + 1e-6)
             self._pending = slot
-        if self._pending is None and time.monotonic() - self._last_query > 1.0:
+        # not in a schedule: ask every second; in one: every SCHEDULE_REFRESH s, in case a
+        # change was published before our subscriber was matched
+        since = time.monotonic() - self._last_query
+        if since > (1.0 if self._pending is None else SCHEDULE_REFRESH):
             self._last_query = time.monotonic()
             self._query_schedule()
         return self._pending

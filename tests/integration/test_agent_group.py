@@ -98,7 +98,13 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(
     # prepared one not taken would be simulated again, alone); one at a time, all alone
     alone = sum(d.simulated_alone for d in drivers)
     acquired = sum(a.counters["acquired"] for a in agents)
-    assert alone == (0 if batch_window else acquired), (alone, acquired)
+    if batch_window:
+        # while the nodes join, a batch may hold one node alone (not prepared: nothing to
+        # share); seen 1-2 of ~370 on a quiet machine; a prepared acquisition not taken by
+        # its slot would make it one per frame
+        assert alone <= len(nodes), (alone, acquired)
+    else:
+        assert alone == acquired, (alone, acquired)
     assert set(status) == set(nodes)
     assert all(s.acquired > 0 and 0.0 < s.cpu < 1.0 for s in status.values())
     # the lateness histogram counts every acquisition up to the status (the last status may
@@ -371,6 +377,48 @@ def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
         now[0] += 0.02  # 25 ms after frame 100's slot: beyond the catch-up, 101's is 5 ms ago
         agent._schedule_in.put(schedule_message(network, period, seq=2).to_wire())
         assert agent.next_slot().frame == 101  # type: ignore[union-attr]
+
+
+def test_a_node_ends_on_the_newest_of_many_schedules_and_a_late_old_reply_does_not_undo_it(
+    hub_endpoint,
+):
+    """Nodes joining one by one make the fusion center publish one schedule per join, faster
+    than a busy worker takes them: the node must end on the newest (a FIFO of 16 that kept
+    the oldest left nodes on stale schedules, two in one slot), and a query's late reply
+    with an older schedule must not undo it."""
+    from protocol.messages import Slot, TdmaSchedule
+
+    network = SimNetwork(load_scenario("foyer3"), seed=3)
+    ids = network.node_ids
+    period = network.scenario.frame_period
+
+    def schedule(n: int, seq: int) -> bytes:
+        txs = [f"other{k}" for k in range(n - 1)] + [ids[0]]  # ours last: its slot moves
+        d = period / n
+        slots = tuple(
+            Slot(slot=i, tx=f"{x}/tx", start=i * d, duration=d) for i, x in enumerate(txs)
+        )
+        return TdmaSchedule(
+            src="f", seq=seq, t=float(seq), frame_period=period, epoch=0.0, slots=slots
+        ).to_wire()
+
+    now = [100 * period]
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+        driver = stack.enter_context(SimulatedDriver(network, ids[0]))
+        agent = NodeAgent(
+            session, driver, AgentConfig(node=ids[0], net=NET, publish_ir=False),
+            clock=lambda: now[0],
+        )  # fmt: skip
+        agent.start(threads=False)
+        stack.callback(agent.stop)
+        for k in range(40):  # 40 joins before the worker looks
+            agent._schedule_in.put(schedule(k + 1, seq=k))
+        slot = agent.next_slot()
+        assert slot is not None and slot.slot == 39  # the newest: 40 slots, ours last
+        agent._schedule_in.put(schedule(11, seq=10))  # a late reply to an old query
+        slot = agent.next_slot()
+        assert slot is not None and slot.slot == 39
 
 
 def test_an_overflowed_outbox_never_sends_a_later_slot_in_a_dropped_ones_place(hub_endpoint):

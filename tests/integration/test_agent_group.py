@@ -344,6 +344,18 @@ def test_scale_rejects_a_bad_rt_priority_with_one_line():
     )
 
 
+def _clocked_agent(stack, hub_endpoint, network, node, now, outbox=100):  # type: ignore[no-untyped-def]
+    """A started agent of ``node`` (simulated, no ``ir``) on its own session, its clock
+    ``now[0]``; stopped with ``stack``."""
+    session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
+    driver = stack.enter_context(SimulatedDriver(network, node))
+    config = AgentConfig(node=node, net=NET, publish_ir=False, outbox=outbox)
+    agent = NodeAgent(session, driver, config, clock=lambda: now[0])
+    agent.start(threads=False)
+    stack.callback(agent.stop)
+    return agent
+
+
 def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
     from sim_nodes.record import schedule_message
 
@@ -352,13 +364,7 @@ def test_catch_up_serves_a_passed_slot_late_and_never_twice(hub_endpoint):
     period = network.scenario.frame_period
     now = [100 * period + 0.005]  # frame 100's slot started 5 ms ago
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
-        driver = stack.enter_context(SimulatedDriver(network, node))
-        agent = NodeAgent(
-            session, driver, AgentConfig(node=node, net=NET, publish_ir=False), clock=lambda: now[0]
-        )
-        agent.start(threads=False)
-        stack.callback(agent.stop)
+        agent = _clocked_agent(stack, hub_endpoint, network, node, now)
         agent._schedule_in.put(schedule_message(network, period).to_wire())
         slot = agent.next_slot()
         assert slot is not None and slot.frame == 101  # skipped: its start has passed
@@ -404,14 +410,7 @@ def test_a_node_ends_on_the_newest_of_many_schedules_and_a_late_old_reply_does_n
 
     now = [100 * period]
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
-        driver = stack.enter_context(SimulatedDriver(network, ids[0]))
-        agent = NodeAgent(
-            session, driver, AgentConfig(node=ids[0], net=NET, publish_ir=False),
-            clock=lambda: now[0],
-        )  # fmt: skip
-        agent.start(threads=False)
-        stack.callback(agent.stop)
+        agent = _clocked_agent(stack, hub_endpoint, network, ids[0], now)
         for k in range(40):  # 40 joins before the worker looks
             agent._schedule_in.put(schedule(k + 1, seq=k))
         slot = agent.next_slot()
@@ -432,14 +431,7 @@ def test_an_overflowed_outbox_never_sends_a_later_slot_in_a_dropped_ones_place(h
     period = network.scenario.frame_period
     now = [100 * period - 0.001]
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
-        driver = stack.enter_context(SimulatedDriver(network, node))
-        agent = NodeAgent(
-            session, driver, AgentConfig(node=node, net=NET, publish_ir=False, outbox=3),
-            clock=lambda: now[0],
-        )  # fmt: skip
-        agent.start(threads=False)
-        stack.callback(agent.stop)
+        agent = _clocked_agent(stack, hub_endpoint, network, node, now, outbox=3)
         agent._schedule_in.put(schedule_message(network, period).to_wire())
         marks = []
         for _ in range(6):  # six slots served ahead of any release: three dropped
@@ -475,14 +467,7 @@ def test_a_schedule_change_that_moves_the_slot_later_does_not_serve_a_frame_twic
 
     now = [100 * period + period / 2]  # the node's slot (second of two) starts now
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(zenoh.open(session_config(connect=[hub_endpoint])))
-        driver = stack.enter_context(SimulatedDriver(network, ids[1]))
-        agent = NodeAgent(
-            session, driver, AgentConfig(node=ids[1], net=NET, publish_ir=False),
-            clock=lambda: now[0],
-        )  # fmt: skip
-        agent.start(threads=False)
-        stack.callback(agent.stop)
+        agent = _clocked_agent(stack, hub_endpoint, network, ids[1], now)
         agent.catch_up = 0.01
         agent._schedule_in.put(schedule([ids[0], ids[1]], 0))
         first = agent.next_slot()

@@ -112,9 +112,9 @@ class SlotOrderGroup:
         for agent in self.agents:
             agent.catch_up = catch_up
         self._stop = threading.Event()
-        # (release time, agent, messages) in the order of the acquisitions: the publisher
-        # thread sends them in slot order, as they were acquired, not before their release
-        # (the messages marked by the agent's put count after the slot: see publish_pending)
+        # (release time, agent, the agent's put count after the slot) in the order of the
+        # acquisitions: the publisher thread sends the messages up to that count (see
+        # publish_pending) in slot order, as they were acquired, not before their release
         self._order: collections.deque[tuple[float, NodeAgent, int]] = collections.deque()
         self._queued = threading.Event()
         # set once the acquisition thread has ended: the publisher's final flush

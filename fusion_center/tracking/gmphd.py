@@ -1701,14 +1701,15 @@ class GmPhdTracker(Tracker):
         """Labelled estimates: per label, the heaviest component; sum of weights as ``w``."""
         cfg = self.config
         mix = self._mix
+        dt = 0.0 if self._t_extract is None else max(t - self._t_extract, 0.0)
+        self._t_extract = t
+        self._elapsed += dt
+        now = self._elapsed
         if mix.w.size == 0:
             self._lost.update(self._last_report)
             self._last_report = {}
             self._hits.clear()
             self._strong_time.clear()
-            if self._t_extract is not None:
-                self._elapsed += max(t - self._t_extract, 0.0)
-            self._t_extract = t
             self._confirmed.clear()
             self._confirmed_arr = np.zeros(0, dtype=np.int64)
             self._claim_arr = self._confirmed_arr
@@ -1729,10 +1730,6 @@ class GmPhdTracker(Tracker):
         strong = label_w >= cfg.extract_threshold
 
         hits, strong_time = {}, {}
-        dt = 0.0 if self._t_extract is None else max(t - self._t_extract, 0.0)
-        self._t_extract = t
-        self._elapsed += dt
-        now = self._elapsed
         if cfg.relink_time > 0.0:
             self._relink(t, mix.m[heads], labels, strong)
         for label, is_strong in zip(labels.tolist(), strong.tolist(), strict=True):

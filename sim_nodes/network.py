@@ -380,14 +380,24 @@ class SimNetwork:
         paths = self._people_paths(node, t)
         if isinstance(paths, tuple):
             return self.radar.path_spectrum(*paths)
+        if paths is None:
+            return np.zeros((self._nodes[node].rx.position.shape[0], self.radar.n_bins), complex)
         return paths
 
-    def _people_paths(self, node: str, t: float) -> tuple[np.ndarray, np.ndarray] | np.ndarray:
+    def _people_paths(
+        self, node: str, t: float
+    ) -> tuple[np.ndarray, np.ndarray] | np.ndarray | None:
         """What :meth:`people_spectrum` synthesises (advancing the fluctuation): the people's
         paths ``(delays, amplitudes)``, shape (n_rx, P), for :meth:`MSequenceRadar.path_spectrum`
-        where the compiled kernel gives them, else the spectrum itself."""
+        where the compiled kernel gives them, else the spectrum itself; None when no body
+        point can ever reach the node (:meth:`_local_view`: no echo at all)."""
         nd = self._nodes[node]
         local = self._local[node]
+        if local is not None and local.points.size == 0:
+            # most nodes of a large building (people_range): only the fluctuation's draws,
+            # to keep the node's stream; no kinematics, no kernel call, no zero spectrum
+            self._fluct[node].advance(t)
+            return None
         amp_fluct = self._fluct[node].step(t)
         if local is not None:
             return self._people_paths_fast(nd, local, amp_fluct, t)
@@ -528,8 +538,12 @@ class SimNetwork:
         spectra = iter(self.radar.path_spectra([p for p in people if isinstance(p, tuple)]))
         for i, node in enumerate(nodes):
             p = people[i]
-            # the same complex64 rounding as acquire's asarray
-            spec[i] = self._static[node] + (next(spectra) if isinstance(p, tuple) else p)
+            # the same complex64 rounding as acquire's asarray (adding no echo: the static
+            # spectrum itself, the same bits)
+            if p is None:
+                spec[i] = self._static[node]
+            else:
+                spec[i] = self._static[node] + (next(spectra) if isinstance(p, tuple) else p)
         h = self.radar.impulse_responses(spec, [self._rng[node] for node in nodes])
         return [(f"{node}/tx", self._nodes[node].rx_names, h[i]) for i, node in enumerate(nodes)]
 

@@ -85,6 +85,11 @@ class ScaleConfig:
     # --threads batch: a node process's acquisition thread serves this many batches (frames)
     # per wake-up, each published at its own slots (SlotOrderGroup batches_per_wake)
     batches_per_wake: int = 1
+    # the node DSP's longest range, m (NodeDspConfig.max_range): the CFAR, background and range
+    # filter run on the window up to it instead of the whole 175 m impulse response; None:
+    # the whole window. The simulator leaves people beyond 20 m out (PEOPLE_RANGE), so no echo
+    # lies beyond about 2 x 21 m of bistatic range (docs/capacity.md, tenth round)
+    max_range: float | None = None
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -285,6 +290,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         )
     if cfg.batches_per_wake > 1 and cfg.threads != "batch":
         raise ScaleError("--batches-per-wake needs --threads batch")
+    if cfg.max_range is not None and not (math.isfinite(cfg.max_range) and cfg.max_range > 0):
+        raise ScaleError(f"--max-range must be a positive number of metres, not {cfg.max_range}")
     if cfg.frame_lag < 1:
         raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
     if cfg.frame_wait < 0:
@@ -316,6 +323,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "frame_wait": cfg.frame_wait,
         "catch_up": cfg.catch_up,
         "batches_per_wake": cfg.batches_per_wake,
+        "max_range": cfg.max_range,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

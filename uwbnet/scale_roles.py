@@ -171,9 +171,19 @@ def _write_tracks(path: Path, received: list[tuple[float, bytes]]) -> None:
     partial.replace(path)
 
 
+def agent_config(cfg: dict[str, Any], node: str) -> Any:
+    """The node agent configuration of ``node`` in a ``nodes`` process: raw ``ir`` off, and
+    the DSP's range window up to ``cfg["max_range"]`` m (None: the whole window)."""
+    from node_agent.agent import AgentConfig
+    from node_agent.dsp.pipeline import NodeDspConfig
+
+    dsp = NodeDspConfig(max_range=cfg.get("max_range"))
+    return AgentConfig(node=node, net=cfg["net"], publish_ir=False, dsp=dsp)
+
+
 def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
     """Simulated nodes ``cfg["ids"]`` with their node agents (raw ``ir`` off)."""
-    from node_agent.agent import AgentConfig, NodeAgent
+    from node_agent.agent import NodeAgent
     from node_agent.group import SlotOrderGroup
     from sim_nodes.driver import SimulatedDriver
     from sim_nodes.network import SimNetwork
@@ -188,9 +198,7 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
         agents = []
         for node in cfg["ids"]:
             driver = stack.enter_context(SimulatedDriver(network, node, start=epoch))
-            agents.append(
-                NodeAgent(session, driver, AgentConfig(node=node, net=cfg["net"], publish_ir=False))
-            )
+            agents.append(NodeAgent(session, driver, agent_config(cfg, node)))
         # start-up is over (imports, kernels, scene, DSP state): its heap never needs scanning
         # again; collected before the slots run, not in one of them
         settle_heap()

@@ -375,3 +375,11 @@ class Fluctuation:
             self._x = rho * self._x + np.sqrt(1 - rho**2) * self._draw(self._x.shape[0])
         self._t = t
         return np.abs(self._x)
+
+    def advance(self, t: float) -> None:
+        """Advance to time t drawing what :meth:`step` draws, without computing the factors:
+        for a node that no body point can ever reach (the generator's stream, and so the
+        node's later noise, stays what :meth:`step` leaves; the factors are never used)."""
+        if self._t is not None:
+            self._rng.standard_normal((2, self._x.shape[0]))
+        self._t = t

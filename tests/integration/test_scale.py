@@ -96,3 +96,15 @@ def test_scale_rejects_bad_arguments_with_one_line():
     assert_one_line_error(uwbnet("scale", "--nodes", "0"), "--nodes")
     assert_one_line_error(uwbnet("scale", "--nodes", "x"), "--nodes")
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--frame-lag", "0"), "--frame-lag")
+    for bad in ("0", "-5", "nan"):
+        assert_one_line_error(uwbnet("scale", "--nodes", "4", "--max-range", bad), "--max-range")
+
+
+def test_max_range_reaches_the_node_agents_dsp():
+    from node_agent.dsp.pipeline import NodeDspConfig
+    from uwbnet.scale_roles import agent_config
+
+    base = {"net": "scale", "ids": ["n000"]}
+    assert agent_config(base, "n000").dsp == NodeDspConfig()
+    cfg = agent_config(base | {"max_range": 45.0}, "n000")
+    assert cfg.node == "n000" and not cfg.publish_ir and cfg.dsp.max_range == 45.0

@@ -61,3 +61,24 @@ def test_fast_synthesis_gives_the_full_synthesis_impulse_responses():
             echo = max(echo, float(np.abs(full.people_spectrum(node, t)).max()))
             fast.people_spectrum(node, t)  # keep both fluctuation streams in step
     assert echo > 0.0  # some node saw a person, so the people's part was compared
+
+
+def test_a_node_no_person_can_reach_keeps_its_noise_stream():
+    # 100 nodes, 2 people over 3 rooms each: most nodes never see anyone, and skip the
+    # people's synthesis; their impulse responses (noise included) stay those of the full
+    # synthesis, in a batch and alone, and so do the next acquisitions of every node.
+    s = building_scenario(100, 2, seed=1)
+    fast = SimNetwork(s, 5, people_range=20.0)
+    full = SimNetwork(s, 5, people_range=20.0, reference=True)
+    ids = fast.node_ids[:16]
+    unreachable = [n for n in ids if fast._local[n].points.size == 0]
+    assert len(unreachable) >= 8
+    for f in range(3):
+        requests = [(n, 1.0 + 0.02 * f + 0.0002 * k) for k, n in enumerate(ids)]
+        batch = fast.acquire_many(requests)
+        for (node, t), (_, _, h) in zip(requests, batch, strict=True):
+            np.testing.assert_array_equal(h, full.acquire(node, t)[2])
+    node = unreachable[0]
+    assert np.abs(fast.people_spectrum(node, 2.0)).max() == 0
+    full.people_spectrum(node, 2.0)
+    np.testing.assert_array_equal(fast.acquire(node, 2.1)[2], full.acquire(node, 2.1)[2])

@@ -159,6 +159,16 @@ class SimNetwork:
         recomputed per call) instead of with the per-node precomputation described in
         :meth:`people_spectrum`. Both give the same impulse responses; the full synthesis
         is kept as the reference the tests compare the fast path with.
+    window : int or None
+        Deliver only the first ``window`` samples of each impulse response (``node_info``
+        then says ``radar.n = window``: the radar window PROTOCOL.md allows). The static
+        channel's response is then computed once per node in the time domain, the people's
+        echoes are added in the time domain (one inverse FFT per acquisition that has any),
+        and the thermal noise is drawn for the window only
+        (:meth:`MSequenceRadar.window_noise`: the same std and correlation, other
+        realisations). None (default): the whole period, as a radar delivers it. A large
+        building with a bounded ``people_range`` needs no sample beyond about twice that
+        range (``uwbnet scale --ir-window``, docs/capacity.md, tenth round).
     """
 
     def __init__(
@@ -168,6 +178,7 @@ class SimNetwork:
         *,
         people_range: float = np.inf,
         reference: bool = False,
+        window: int | None = None,
     ) -> None:
         if isinstance(scenario, str):
             scenario = load_scenario(scenario)
@@ -231,6 +242,14 @@ class SimNetwork:
                     *image_paths(node.tx, node.rx, self.walls, ch.reflection_order)
                 )
                 for nid, node in self._nodes.items()
+            }
+        self.window = None if window is None else int(window)
+        self._static_h: dict[str, npt.NDArray[np.float32]] = {}
+        if self.window is not None:
+            self.radar.window_grid(self.window)  # validates the window
+            self._static_h = {
+                nid: self.radar.echo_responses(spec)[:, : self.window].copy()
+                for nid, spec in self._static.items()
             }
 
     def _load_kernel(self) -> None:
@@ -333,7 +352,7 @@ class SimNetwork:
         cfg = self.radar.config
         radar = {
             "fs": float(cfg.fs),
-            "n": int(cfg.n),
+            "n": int(cfg.n if self.window is None else self.window),
             "t0": float(cfg.t0),
             "f_low": float(cfg.f_low),
             "f_high": float(cfg.f_high),
@@ -442,7 +461,7 @@ class SimNetwork:
 
     def _people_paths_fast(
         self, nd: _Node, local: _LocalView, amp_fluct: np.ndarray, t: float
-    ) -> tuple[np.ndarray, np.ndarray] | np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         crowd, walls = self.crowd, local.walls
         n_rx = nd.rx.position.shape[0]
         delays = np.empty((n_rx, local.points.size))
@@ -476,7 +495,7 @@ class SimNetwork:
             amps,
         )
         if count == 0:
-            return np.zeros((n_rx, self.radar.n_bins), complex)
+            return None  # no echo now: the static spectrum alone, the same bits as adding 0
         return delays[:, :count], amps[:, :count]
 
     def acquire(self, node: str, t: float) -> tuple[str, tuple[str, ...], npt.NDArray[np.float32]]:
@@ -500,9 +519,36 @@ class SimNetwork:
         """
         if node not in self._nodes:
             raise KeyError(f"unknown node {node!r}")
+        if self.window is not None:
+            return self._acquire_windowed([(node, t)])[0]
         spec = self._static[node] + self.people_spectrum(node, t)
         h = self.radar.impulse_response(spec, self._rng[node])
         return f"{node}/tx", self._nodes[node].rx_names, h
+
+    def _acquire_windowed(
+        self, requests: Sequence[tuple[str, float]]
+    ) -> list[tuple[str, tuple[str, ...], npt.NDArray[np.float32]]]:
+        """:meth:`acquire_many` with a ``window``: static response + the people's echoes
+        (inverse FFT of their spectra, for the acquisitions that have any) + the window's
+        noise, in the time domain. Row by row the same arithmetic whatever the batch, and
+        each node's generator draws its fluctuation, then its noise: bit for bit the same
+        in a batch and one by one."""
+        assert self.window is not None
+        nodes = [node for node, _ in requests]
+        n_rx = self._nodes[nodes[0]].rx.position.shape[0]
+        people = [self._people_paths(node, t) for node, t in requests]
+        h = np.stack([self._static_h[node] for node in nodes])
+        echo = [i for i, p in enumerate(people) if p is not None]
+        if echo:
+            spectra = iter(self.radar.path_spectra([p for p in people if isinstance(p, tuple)]))
+            spec = np.empty((len(echo), n_rx, self.radar.n_bins), np.complex64)
+            for j, i in enumerate(echo):
+                p = people[i]
+                spec[j] = next(spectra) if isinstance(p, tuple) else p
+            h[echo] += self.radar.echo_responses(spec)[..., : self.window]
+        if self.radar.config.noise:
+            h += self.radar.window_noise([self._rng[node] for node in nodes], n_rx, self.window)
+        return [(f"{node}/tx", self._nodes[node].rx_names, h[i]) for i, node in enumerate(nodes)]
 
     def acquire_many(
         self, requests: Sequence[tuple[str, float]]
@@ -532,6 +578,8 @@ class SimNetwork:
             return [self.acquire(node, t) for node, t in requests]
         if not requests:
             return []
+        if self.window is not None:
+            return self._acquire_windowed(requests)
         spec = np.empty((len(requests), n_rx.pop(), self.radar.n_bins), np.complex64)
         people = [self._people_paths(node, t) for node, t in requests]
         # the people's path spectra of the batch together (bit for bit one by one)
@@ -548,5 +596,8 @@ class SimNetwork:
         return [(f"{node}/tx", self._nodes[node].rx_names, h[i]) for i, node in enumerate(nodes)]
 
     def static_response(self, node: str) -> npt.NDArray[np.float32]:
-        """Noise-free background (coupling + walls) of ``node``, float32 (n_rx, n)."""
+        """Noise-free background (coupling + walls) of ``node``, float32 (n_rx, n), n the
+        ``window`` if one is set."""
+        if self.window is not None:
+            return self._static_h[node].copy()
         return self.radar.impulse_response(self._static[node])

@@ -97,6 +97,11 @@ def mlbs(
     return (2 * bits.astype(np.int8) - 1).astype(np.int8)
 
 
+#: Samples beyond a window that :meth:`MSequenceRadar.window_noise`'s periodic grid adds:
+#: the noise's autocorrelation is below 1e-4 of its peak beyond lag 70.
+WINDOW_NOISE_GUARD = 128
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RadarConfig:
     """Parameters of the simulated M-sequence radar (SI units).
@@ -181,15 +186,7 @@ class MSequenceRadar:
         #: DFT frequencies f_k = k fs / n, Hz, shape (n_bins,).
         self.frequencies = np.arange(self.n_bins) * (cfg.fs / n)
         f = self.frequencies
-        # Receiver band B(f): smooth 4th-order high-pass (antenna/front end) and a
-        # raised-cosine anti-alias taper ending at f_high (keeps pulse ringing short).
-        hp = (f / cfg.highpass) ** 4 / (1 + (f / cfg.highpass) ** 4) if cfg.highpass > 0 else 1.0
-        f_pass = cfg.f_high * (1 - cfg.rolloff)
-        x = np.clip((f - f_pass) / max(cfg.f_high - f_pass, 1e-30), 0.0, 1.0)
-        lp = 0.5 * (1 + np.cos(np.pi * x))
-        band = np.asarray(hp * lp, float)
-        band[f < cfg.f_low] = 0.0
-        band[0] = 0.0  # the phase-only reference has no DC bin (Ilmsens), nor has the front end
+        band = self.band(f)
         #: Receiver band magnitude B_k, shape (n_bins,).
         self.receiver_band = band
         g = np.sinc(f / cfg.fs) ** 2 * band
@@ -228,6 +225,21 @@ class MSequenceRadar:
         self._block_index = np.concatenate(
             [np.arange(self._n_lo), self._n_lo * np.arange(n_hi)]
         ).astype(float)
+        self._window_grids: dict[int, tuple[int, npt.NDArray[np.float32]]] = {}
+
+    def band(self, f: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Receiver band magnitude ``B(f)`` at frequencies ``f`` (Hz, ascending from 0)."""
+        cfg = self.config
+        # Receiver band B(f): smooth 4th-order high-pass (antenna/front end) and a
+        # raised-cosine anti-alias taper ending at f_high (keeps pulse ringing short).
+        hp = (f / cfg.highpass) ** 4 / (1 + (f / cfg.highpass) ** 4) if cfg.highpass > 0 else 1.0
+        f_pass = cfg.f_high * (1 - cfg.rolloff)
+        x = np.clip((f - f_pass) / max(cfg.f_high - f_pass, 1e-30), 0.0, 1.0)
+        lp = 0.5 * (1 + np.cos(np.pi * x))
+        band = np.asarray(hp * lp, float)
+        band[f < cfg.f_low] = 0.0
+        band[0] = 0.0  # the phase-only reference has no DC bin (Ilmsens), nor has the front end
+        return band
 
     @property
     def delays(self) -> npt.NDArray[np.float64]:
@@ -415,6 +427,71 @@ class MSequenceRadar:
             for i, rng in enumerate(rngs):
                 u[:, i] = rng.random((2, *spec.shape[1:]), dtype=np.float32)
             self._add_noise_uniforms(spec, u)
+        return np.fft.irfft(spec, n=self.config.n, axis=-1).astype(np.float32, copy=False)
+
+    def window_grid(self, length: int) -> tuple[int, npt.NDArray[np.float32]]:
+        """The grid of :meth:`window_noise` for the first ``length`` samples: its period
+        ``m`` (an FFT-friendly length at least ``length + WINDOW_NOISE_GUARD``) and the
+        per-bin std of the real and imaginary parts, shape (m // 2 + 1,), float32."""
+        if not 1 <= length <= self.config.n:
+            raise ValueError(f"window must be 1 to {self.config.n} samples, not {length}")
+        cached = self._window_grids.get(length)
+        if cached is not None:
+            return cached
+        from scipy.fft import next_fast_len
+
+        cfg = self.config
+        m = min(next_fast_len(length + WINDOW_NOISE_GUARD, real=True), cfg.n)
+        if m == cfg.n:  # no shorter grid: the radar's own
+            grid = (m, self._noise_scale)
+        else:
+            band = self.band(np.arange(m // 2 + 1) * (cfg.fs / m))
+            if m % 2 == 0:
+                band[-1] = 0.0  # the Nyquist bin is real: its noise would have half the power
+            # var(irfft(V)) = (4 s^2 / m^2) sum_k B_k^2 for V_k = s B_k (a + j b), a, b
+            # ~ N(0, 1): s is chosen to give the impulse response's noise_std
+            s = self.noise_std * m / (2 * np.sqrt(np.sum(band[1:] ** 2)))
+            grid = (m, (band * s).astype(np.float32))
+        self._window_grids[length] = grid
+        return grid
+
+    def window_noise(
+        self, rngs: Sequence[np.random.Generator], n_rx: int, length: int
+    ) -> npt.NDArray[np.float32]:
+        """Thermal noise of the first ``length`` samples of the impulse responses of
+        ``len(rngs)`` acquisitions (one generator each), shape (k, n_rx, length), float32.
+
+        The noise :meth:`noise_spectrum` adds is stationary Gaussian noise of spectrum
+        ``B_k^2`` (std :attr:`noise_std`), whose autocorrelation falls below 1e-4 of its
+        peak within 70 samples. Here it is synthesised on a shorter periodic grid of ``m``
+        samples (:meth:`window_grid`, at least ``length + WINDOW_NOISE_GUARD``) with the
+        same band, Box-Muller draws and scale, and cut to ``length``: the same std and,
+        within the window, the same correlation up to the grid's period (lags beyond
+        ``m - length`` alias, where the correlation is below 1e-4). For a radar window
+        much shorter than the period (``uwbnet scale``'s range window, docs/capacity.md,
+        tenth round) this draws and transforms a fraction of the bins; the realisations
+        differ from :meth:`impulse_response`'s.
+        """
+        m, scale = self.window_grid(length)
+        k = len(rngs)
+        u = np.empty((2, k, n_rx, scale.size), np.float32)
+        for i, rng in enumerate(rngs):
+            u[:, i] = rng.random((2, n_rx, scale.size), dtype=np.float32)
+        r = np.log1p(-u[0])
+        r *= -2.0
+        np.sqrt(r, out=r)
+        r *= scale
+        theta = u[1]
+        theta *= np.float32(2 * np.pi)
+        spec = np.empty((k, n_rx, scale.size), np.complex64)
+        spec.real = r * np.cos(theta)
+        spec.imag = r * np.sin(theta)
+        return np.fft.irfft(spec, n=m, axis=-1)[..., :length].astype(np.float32, copy=False)
+
+    def echo_responses(self, channel_spectra: np.ndarray) -> npt.NDArray[np.float32]:
+        """Noise-free impulse responses ``irfft(G_k C_k)`` of spectra of shape
+        (..., n_bins), float32 (..., n)."""
+        spec = np.asarray(channel_spectra, np.complex64) * self._system_response32
         return np.fft.irfft(spec, n=self.config.n, axis=-1).astype(np.float32, copy=False)
 
     def receive(

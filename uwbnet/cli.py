@@ -374,6 +374,7 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 catch_up=args.catch_up,
                 batches_per_wake=args.batches_per_wake,
                 max_range=args.max_range,
+                ir_window=args.ir_window,
                 seed=args.seed,
                 out=args.out,
             )
@@ -997,6 +998,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="M",
         help="the node DSP processes bistatic ranges up to M metres only (default: the whole "
         "impulse response; people beyond 20 m are not simulated, so 45 m loses no echo)",
+    )
+    sc.add_argument(
+        "--ir-window",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the simulated radars deliver only the impulse-response samples up to M metres "
+        "of bistatic range, their noise drawn for those only (default: the whole period)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

@@ -90,6 +90,10 @@ class ScaleConfig:
     # the whole window. The simulator leaves people beyond 20 m out (PEOPLE_RANGE), so no echo
     # lies beyond about 2 x 21 m of bistatic range (docs/capacity.md, tenth round)
     max_range: float | None = None
+    # the simulated radar window, m of bistatic range: the node processes' simulator delivers
+    # (and node_info declares) only the impulse-response samples up to it, with the thermal
+    # noise drawn for those only (SimNetwork window); None: the whole 4,095-sample period
+    ir_window: float | None = None
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -292,6 +296,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError("--batches-per-wake needs --threads batch")
     if cfg.max_range is not None and not (math.isfinite(cfg.max_range) and cfg.max_range > 0):
         raise ScaleError(f"--max-range must be a positive number of metres, not {cfg.max_range}")
+    if cfg.ir_window is not None and not (math.isfinite(cfg.ir_window) and cfg.ir_window > 0):
+        raise ScaleError(f"--ir-window must be a positive number of metres, not {cfg.ir_window}")
     if cfg.frame_lag < 1:
         raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
     if cfg.frame_wait < 0:
@@ -324,6 +330,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "catch_up": cfg.catch_up,
         "batches_per_wake": cfg.batches_per_wake,
         "max_range": cfg.max_range,
+        "ir_window": cfg.ir_window,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import json
 import logging
+import math
 import os
 import sys
 import threading
@@ -171,6 +172,19 @@ def _write_tracks(path: Path, received: list[tuple[float, bytes]]) -> None:
     partial.replace(path)
 
 
+def sim_window(cfg: dict[str, Any], radar: Any) -> int | None:
+    """Samples of the simulated radar window ``cfg["ir_window"]`` (m of bistatic range, None:
+    the whole period) for ``radar`` (:class:`sim_nodes.radar.RadarConfig`): every sample
+    whose range ``c (t0 + k / fs)`` is at most the window, at least one, at most ``n``."""
+    from sim_nodes.radar import C
+
+    metres = cfg.get("ir_window")
+    if metres is None:
+        return None
+    k = math.floor((metres / C - radar.t0) * radar.fs + 1e-9) + 1
+    return min(max(k, 1), radar.n)
+
+
 def agent_config(cfg: dict[str, Any], node: str) -> Any:
     """The node agent configuration of ``node`` in a ``nodes`` process: raw ``ir`` off, and
     the DSP's range window up to ``cfg["max_range"]`` m (None: the whole window)."""
@@ -189,7 +203,13 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
     from sim_nodes.network import SimNetwork
     from uwbnet.processes import fetch_epoch
 
-    network = SimNetwork(building(cfg), cfg["seed"], people_range=PEOPLE_RANGE)
+    scenario = building(cfg)
+    network = SimNetwork(
+        scenario,
+        cfg["seed"],
+        people_range=PEOPLE_RANGE,
+        window=sim_window(cfg, scenario.radar.config()),
+    )
     _say("started")
     with _session(cfg) as session, contextlib.ExitStack() as stack:
         epoch = fetch_epoch(session, cfg["net"], stop)

@@ -98,6 +98,7 @@ def test_scale_rejects_bad_arguments_with_one_line():
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--frame-lag", "0"), "--frame-lag")
     for bad in ("0", "-5", "nan"):
         assert_one_line_error(uwbnet("scale", "--nodes", "4", "--max-range", bad), "--max-range")
+    assert_one_line_error(uwbnet("scale", "--nodes", "4", "--ir-window", "0"), "--ir-window")
 
 
 def test_max_range_reaches_the_node_agents_dsp():
@@ -108,3 +109,16 @@ def test_max_range_reaches_the_node_agents_dsp():
     assert agent_config(base, "n000").dsp == NodeDspConfig()
     cfg = agent_config(base | {"max_range": 45.0}, "n000")
     assert cfg.node == "n000" and not cfg.publish_ir and cfg.dsp.max_range == 45.0
+
+
+def test_ir_window_is_the_samples_up_to_its_range():
+    from sim_nodes.radar import C, RadarConfig
+    from uwbnet.scale_roles import sim_window
+
+    radar = RadarConfig()
+    assert sim_window({}, radar) is None
+    k = sim_window({"ir_window": 45.0}, radar)
+    # the last sample's range is within the window, the next one's beyond it
+    assert k == 1051 and (k - 1) * C / radar.fs <= 45.0 < k * C / radar.fs
+    assert sim_window({"ir_window": 1e4}, radar) == radar.n
+    assert sim_window({"ir_window": 1e-6}, radar) == 1

@@ -114,3 +114,28 @@ def test_blocked_path_spectrum_equals_the_direct_sum(radar: MSequenceRadar) -> N
     f = radar.frequencies
     direct = np.sum(amps[..., None] * np.exp(-2j * np.pi * f * delays[..., None]), axis=1)
     np.testing.assert_allclose(radar.path_spectrum(delays, amps), direct, atol=2e-5)
+
+
+def test_window_noise_has_the_std_and_correlation_of_the_full_period_noise():
+    radar = MSequenceRadar()
+    m, scale = radar.window_grid(1051)
+    assert 1051 + 128 <= m < radar.config.n and scale.shape == (m // 2 + 1,)
+    rngs = [np.random.default_rng(i) for i in range(300)]
+    w = radar.window_noise(rngs, 2, 1051)
+    assert w.shape == (300, 2, 1051) and w.dtype == np.float32
+    full = np.fft.irfft(radar.noise_spectrum(np.random.default_rng(7), 600), n=radar.config.n)
+    assert abs(w.std() / radar.noise_std - 1) < 0.01
+    assert abs(full.std() / radar.noise_std - 1) < 0.01
+
+    def corr(x, lag):
+        return float(np.mean(x[..., :-lag] * x[..., lag:]) / np.mean(x * x))
+
+    # the band's correlation (0.08, -0.20, 0.05 at lags 1-3), within the draws' error
+    for lag in (1, 2, 3, 4, 8, 20):
+        assert abs(corr(w, lag) - corr(full, lag)) < 0.01, lag
+    # the same generator draws the same noise; a window as long as the period is the radar's grid
+    again = radar.window_noise([np.random.default_rng(0)], 2, 1051)
+    np.testing.assert_array_equal(again[0], w[0])
+    assert radar.window_grid(4095)[0] == 4095
+    with pytest.raises(ValueError, match="window"):
+        radar.window_grid(0)

@@ -72,6 +72,15 @@ class SlotOrderGroup:
         acquisition time (``NodeAgent.catch_up``); 0 (default): such slots are skipped. A
         process that waited for a core otherwise loses the slots of all its nodes
         (docs/capacity.md, seventh round).
+    pipeline : with ``batch_window`` > 0 and one batch per wake-up: 0 (default) runs an
+        acquisition thread and a publisher thread, each woken once per batch. > 0 (s): one
+        thread does both, pipelined: it wakes when the batch served last is due (its last
+        slot start), publishes its messages, and then at once serves the next batch if
+        that batch's first slot is at most ``pipeline`` s away (one frame period: the next
+        frame's batch, served ahead of its slots), then sleeps until that batch is due. One wake-up
+        per frame for the whole process instead of two, the same messages at the same
+        times (none before its slot), each acquisition computed up to ``pipeline`` s before
+        its slot (docs/capacity.md, tenth round).
 
     ``start()`` and ``stop()`` are idempotent; ``stop`` joins the threads and stops the agents.
     """
@@ -85,6 +94,7 @@ class SlotOrderGroup:
         acquire_ahead: bool = True,
         catch_up: float = 0.0,
         batches_per_wake: int = 1,
+        pipeline: float = 0.0,
     ) -> None:
         if not agents:
             raise ValueError("a SlotOrderGroup needs at least one agent")
@@ -109,6 +119,13 @@ class SlotOrderGroup:
         if batches_per_wake > 1 and not batch_window:
             raise ValueError("batches_per_wake > 1 needs batch_window > 0 (simulated drivers)")
         self.batches_per_wake = int(batches_per_wake)
+        if not 0.0 <= pipeline <= 1.0:
+            raise ValueError(f"pipeline must be 0 to 1 s, not {pipeline}")
+        if pipeline and (not batch_window or batches_per_wake > 1):
+            raise ValueError(
+                "pipeline needs batch_window > 0 (simulated drivers) and one batch per wake-up"
+            )
+        self.pipeline = pipeline
         for agent in self.agents:
             agent.catch_up = catch_up
         self._stop = threading.Event()
@@ -128,17 +145,26 @@ class SlotOrderGroup:
         for agent in self.agents:
             agent.start(threads=False)
         name = f"group-{self.agents[0].config.node}"
-        self._threads = [
-            threading.Thread(target=self._publish_loop, name=f"{name}-pub", daemon=True),
-            threading.Thread(target=self._run, name=name, daemon=True),
-        ]
+        if self.pipeline:
+            # one thread: no publisher (the acquisition thread publishes and flushes)
+            self._threads = [
+                threading.Thread(target=self._run_pipelined, name=name, daemon=True),
+            ]
+        else:
+            self._threads = [
+                threading.Thread(target=self._publish_loop, name=f"{name}-pub", daemon=True),
+                threading.Thread(target=self._run, name=name, daemon=True),
+            ]
         for thread in self._threads:
             thread.start()
 
     def stop(self) -> None:
         """Stop the threads, publish what is queued, and stop (undeclare) every agent."""
         self._stop.set()
-        publisher, acquisition = self._threads or (None, None)
+        if len(self._threads) == 2:
+            publisher, acquisition = self._threads
+        else:  # pipelined (one thread, which flushes at its end) or never started
+            publisher, acquisition = None, (self._threads or [None])[0]
         # the acquisition thread first: a batch it is serving ends and queues its messages,
         # and only then does the publisher make its final flush
         if acquisition is not None:
@@ -175,14 +201,56 @@ class SlotOrderGroup:
                         batch, first, last = ahead
                         self._serve_batch([self.agents[i] for i in batch], first, last)
             except Exception:
-                # one thread serves every node of the process: an unexpected error in one
-                # slot must not end them all; counted and logged, those slots given up (not
-                # retried in a loop), the next ones served
-                self.errors += 1
-                if self.errors <= 10 or self.errors % 1000 == 0:  # not 50 tracebacks a second
-                    log.exception("slot service failed (%d so far)", self.errors)
-                for i in batch:
-                    self.agents[i].skip_until(last)
+                self._failed(batch, last)
+
+    def _run_pipelined(self) -> None:
+        while not self._stop.is_set():
+            self._publish_due()
+            upcoming = self._next_batch()
+            # the next batch once the last one has left (publish frame f, then compute
+            # f + 1), ahead of its slots: queued, released at its last slot
+            if (
+                upcoming is not None
+                and not self._order
+                and upcoming[1] - self.clock() <= self.pipeline
+            ):
+                batch, first, last = upcoming
+                try:
+                    self._serve_batch([self.agents[i] for i in batch], first, last)
+                except Exception:
+                    self._failed(batch, last)
+                continue  # what fell due while serving leaves at once
+            # asleep until the batch served last is due, else until the next one comes
+            # within reach
+            if self._order:
+                wait = self._order[0][0] - self.clock()
+            elif upcoming is not None:
+                wait = upcoming[1] - self.pipeline - self.clock()
+            else:
+                wait = 0.05
+            if wait > 0:
+                self._stop.wait(wait)
+        # the final flush: everything queued, none before its release
+        self._publish_released(None)
+        for agent in self.agents:
+            agent.publish_pending()
+
+    def _publish_due(self) -> None:
+        """Publish, in order, the queued messages whose release time has come."""
+        now = self.clock()
+        while self._order and self._order[0][0] <= now:
+            _, agent, mark = self._order.popleft()
+            agent.publish_pending(mark)
+
+    def _failed(self, batch: list[int], last: float) -> None:
+        # one thread serves every node of the process: an unexpected error in one slot must
+        # not end them all; counted and logged, those slots given up (not retried in a
+        # loop), the next ones served
+        self.errors += 1
+        if self.errors <= 10 or self.errors % 1000 == 0:  # not 50 tracebacks a second
+            log.exception("slot service failed (%d so far)", self.errors)
+        for i in batch:
+            self.agents[i].skip_until(last)
 
     def _next_batch(self) -> tuple[list[int], float, float] | None:
         """The agents (indices) of the next batch, its first and last slot start; None if no

@@ -375,6 +375,7 @@ def cmd_scale(args: argparse.Namespace) -> int:
                 batches_per_wake=args.batches_per_wake,
                 max_range=args.max_range,
                 ir_window=args.ir_window,
+                pipeline=args.pipeline,
                 seed=args.seed,
                 out=args.out,
             )
@@ -1006,6 +1007,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="M",
         help="the simulated radars deliver only the impulse-response samples up to M metres "
         "of bistatic range, their noise drawn for those only (default: the whole period)",
+    )
+    sc.add_argument(
+        "--pipeline",
+        action="store_true",
+        help="--threads batch: one thread per node process publishes a frame's messages at "
+        "their slots and then computes the next frame (one wake-up per frame, not two)",
     )
     sc.add_argument("--seed", type=int, default=1)
     sc.add_argument("--out", help="directory for tracks.jsonl and process logs (default: temp)")

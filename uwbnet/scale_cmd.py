@@ -94,6 +94,10 @@ class ScaleConfig:
     # (and node_info declares) only the impulse-response samples up to it, with the thermal
     # noise drawn for those only (SimNetwork window); None: the whole 4,095-sample period
     ir_window: float | None = None
+    # --threads batch: one thread per node process publishes frame f's messages at their
+    # release and then computes frame f + 1, ahead (SlotOrderGroup pipeline = one frame): one
+    # wake-up per frame instead of two (acquisition and publisher threads)
+    pipeline: bool = False
     seed: int = 1
     net: str = "scale"
     out: str | None = None
@@ -298,6 +302,8 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         raise ScaleError(f"--max-range must be a positive number of metres, not {cfg.max_range}")
     if cfg.ir_window is not None and not (math.isfinite(cfg.ir_window) and cfg.ir_window > 0):
         raise ScaleError(f"--ir-window must be a positive number of metres, not {cfg.ir_window}")
+    if cfg.pipeline and (cfg.threads != "batch" or cfg.batches_per_wake > 1):
+        raise ScaleError("--pipeline needs --threads batch and --batches-per-wake 1")
     if cfg.frame_lag < 1:
         raise ScaleError(f"--frame-lag must be >= 1, not {cfg.frame_lag}")
     if cfg.frame_wait < 0:
@@ -331,6 +337,7 @@ def run_scale(cfg: ScaleConfig) -> dict[str, Any]:
         "batches_per_wake": cfg.batches_per_wake,
         "max_range": cfg.max_range,
         "ir_window": cfg.ir_window,
+        "pipeline": FRAME if cfg.pipeline else 0.0,
     }
     procs: list[_Proc] = []
     with contextlib.ExitStack() as stack:

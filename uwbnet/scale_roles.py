@@ -233,6 +233,7 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
                 batch_window=BATCH_WINDOW if batch else 0,
                 catch_up=cfg.get("catch_up", 0.0) if batch else 0.0,
                 batches_per_wake=cfg.get("batches_per_wake", 1) if batch else 1,
+                pipeline=cfg.get("pipeline", 0.0) if batch else 0.0,
             )
             group.start()
             stack.callback(group.stop)

@@ -32,12 +32,16 @@ pytestmark = pytest.mark.integration
 NET = "grouptest"
 
 
-@pytest.mark.parametrize(("batch_window", "per_wake"), [(0.0, 1), (0.01, 1), (0.01, 2)])
+@pytest.mark.parametrize(
+    ("batch_window", "per_wake", "pipeline"),
+    [(0.0, 1, 0.0), (0.01, 1, 0.0), (0.01, 2, 0.0), (0.01, 1, 0.02)],
+)
 def test_one_thread_serves_the_agents_of_a_process_in_slot_order(
-    hub_endpoint, batch_window, per_wake
+    hub_endpoint, batch_window, per_wake, pipeline
 ):
     # batch_window 0.01: the agents' slots of a frame served and published together;
-    # per_wake 2: two frames' batches per wake-up, the second ahead of its slots
+    # per_wake 2: two frames' batches per wake-up, the second ahead of its slots; pipeline:
+    # one thread publishes a frame and then serves the next, ahead of its slots
     network = SimNetwork(load_scenario("foyer3"), seed=7)
     nodes = sorted(network.node_infos())
     assert len(nodes) >= 3
@@ -61,12 +65,15 @@ def test_one_thread_serves_the_agents_of_a_process_in_slot_order(
             agents.append(
                 NodeAgent(session, driver, AgentConfig(node=node, net=NET, publish_ir=False))
             )
-        group = SlotOrderGroup(agents, batch_window=batch_window, batches_per_wake=per_wake)
+        group = SlotOrderGroup(
+            agents, batch_window=batch_window, batches_per_wake=per_wake, pipeline=pipeline
+        )
         group.start()
         stack.callback(group.stop)
         names = {t.name for t in threading.enumerate()}
         assert not any(n.startswith("agent-") for n in names), names
-        assert {f"group-{nodes[0]}", f"group-{nodes[0]}-pub"} <= names
+        assert f"group-{nodes[0]}" in names
+        assert (f"group-{nodes[0]}-pub" in names) == (not pipeline)
         _wait_for(
             lambda: all(a.counters["acquired"] >= 60 for a in agents), 20.0, "60 acquisitions each"
         )
@@ -286,6 +293,41 @@ def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_s
             SlotOrderGroup([a], batch_window=0.01, batches_per_wake=bad)  # type: ignore[list-item]
     with pytest.raises(ValueError, match="batch_window"):
         SlotOrderGroup([a], batches_per_wake=2)  # type: ignore[list-item]
+
+
+def test_a_pipelined_group_publishes_a_frame_and_serves_the_next_in_one_wake_up():
+    t0 = time.time() + 0.2
+    # three frames of two adjacent slots (3 ms apart), 60 ms apart; frames served 70 ms ahead
+    a = _FakeAgent("a", [t0, t0 + 0.060, t0 + 0.120])
+    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.063, t0 + 0.123])
+    _FakeDriver.batches = []
+    group = SlotOrderGroup([a, b], batch_window=0.01, pipeline=0.07)  # type: ignore[list-item]
+    group.start()
+    names = {t.name for t in threading.enumerate()}
+    assert "group-a" in names and "group-a-pub" not in names  # one thread
+    try:
+        _wait_for(lambda: all(len(x.published) == 3 for x in (a, b)), 5.0, "all published")
+    finally:
+        group.stop()
+    for f in range(3):
+        # every message leaves once its own frame's last slot (b's) has started, none before
+        assert all(x.published[f][1] >= b.served[f][0] for x in (a, b))
+        assert all(x.published[f][0] == 1 for x in (a, b))
+        # each frame served ahead of its slots, not late
+        assert all(x.served[f][1] < a.served[f][0] for x in (a, b))
+        assert a.late[f] == b.late[f] == 0.0
+    for f in (1, 2):
+        # frame f served in the wake-up that published frame f - 1: after it, not a frame
+        # before it (the frame's first slot was then less than 70 ms away)
+        published = max(x.published[f - 1][1] for x in (a, b))
+        assert all(published <= x.served[f][1] < published + 0.03 for x in (a, b))
+    assert _FakeDriver.batches == [[("a", a.served[f][0]), ("b", b.served[f][0])] for f in range(3)]
+    with pytest.raises(ValueError, match="pipeline"):
+        SlotOrderGroup([a], pipeline=0.02)  # type: ignore[list-item]
+    with pytest.raises(ValueError, match="pipeline"):
+        SlotOrderGroup([a], batch_window=0.01, batches_per_wake=2, pipeline=0.02)  # type: ignore[list-item]
+    with pytest.raises(ValueError, match="pipeline"):
+        SlotOrderGroup([a], batch_window=0.01, pipeline=-1.0)  # type: ignore[list-item]
 
 
 class _SlowAgent(_FakeAgent):

@@ -99,6 +99,8 @@ def test_scale_rejects_bad_arguments_with_one_line():
     for bad in ("0", "-5", "nan"):
         assert_one_line_error(uwbnet("scale", "--nodes", "4", "--max-range", bad), "--max-range")
     assert_one_line_error(uwbnet("scale", "--nodes", "4", "--ir-window", "0"), "--ir-window")
+    for bad in (("--threads", "agent"), ("--batches-per-wake", "2")):
+        assert_one_line_error(uwbnet("scale", "--nodes", "4", "--pipeline", *bad), "--pipeline")
 
 
 def test_max_range_reaches_the_node_agents_dsp():

@@ -98,7 +98,10 @@ class FusionCore:
         self._done_frame = -(2**62)
         self._last_t = -math.inf
         self._seen: dict[str, tuple[int, float]] = {}
-        self._views: dict[tuple[str, str, tuple[str, ...]], tuple[np.ndarray, float, float]] = {}
+        #: Per (node, tx, rx): array centre, boresight, view width, max_range and min_range.
+        self._views: dict[
+            tuple[str, str, tuple[str, ...]], tuple[np.ndarray, float, float, float, float]
+        ] = {}
         self._blind: dict[str, float] = {}  # each node's blind distance, m
         #: Sensors expected to report in every frame (the TDMA schedule's); empty: unknown.
         self.expected: frozenset[str] = frozenset()
@@ -110,8 +113,9 @@ class FusionCore:
         self._blind.pop(info.src, None)
         self._ranges.pop(info.src, None)
 
-    def _view(self, det: Detections) -> tuple[np.ndarray, float, float]:
-        """Array centre (world x, y), boresight and beamwidth of the sensor behind ``det``."""
+    def _view(self, det: Detections) -> tuple[np.ndarray, float, float, float, float]:
+        """Array centre (world x, y), boresight, beamwidth, largest and smallest distance
+        (m) of the sensor behind ``det`` (kept per sensor: one look-up per message)."""
         rx = tuple(sorted(det.ranges))
         key = (det.src, det.tx, rx)
         view = self._views.get(key)
@@ -120,7 +124,13 @@ class FusionCore:
             geom = sensor_geometry(info, det.tx, rx, self.nodes)
             # The node keeps estimates up to its DSP's margin beyond the 3 dB beam.
             width = min(2.0 * math.pi, geom.beamwidth + 2.0 * self.config.view_margin)
-            view = (geom.centre, geom.boresight, width)
+            view = (
+                geom.centre,
+                geom.boresight,
+                width,
+                self._max_range(info),
+                self._min_range(info),
+            )
             self._views[key] = view
         return view
 
@@ -168,7 +178,7 @@ class FusionCore:
             self.counters.late += 1
             return []
         try:
-            origin, boresight, beamwidth = self._view(det)
+            origin, boresight, beamwidth, max_range, min_range = self._view(det)
         except NodeConfigError as exc:
             self.counters.unknown_node += 1
             log.warning("detections of %s rejected: %s", det.src, exc)
@@ -180,7 +190,6 @@ class FusionCore:
         cov = det.cov
         if cov is None:
             cov = np.broadcast_to(np.eye(2) * 0.01, (positions.shape[0], 2, 2))
-        max_range = self._max_range(self.nodes[det.src])
         if self.config.range_gate and positions.shape[0]:
             d = positions - origin
             near = np.einsum("ij,ij->i", d, d) <= max_range * max_range
@@ -197,7 +206,7 @@ class FusionCore:
                 boresight=boresight,
                 beamwidth=beamwidth,
                 max_range=max_range,
-                min_range=self._min_range(self.nodes[det.src]),
+                min_range=min_range,
             )
         )
         reported = self._reported[det.frame]
@@ -230,6 +239,8 @@ class FusionCore:
         return self._emit(max(self._pending))
 
     def _emit(self, upto: int) -> list[TrackerOutput]:
+        if not self._pending or upto < min(self._pending):
+            return []  # most detections: their frame is not due yet
         out = []
         for frame in sorted(f for f in self._pending if f <= upto):
             scans = sorted(self._pending.pop(frame), key=lambda s: s.t)

@@ -1069,8 +1069,12 @@ class GmPhdTracker(Tracker):
         components x estimates; ``owner``: the scan of each estimate, ``None``: all from
         the one scan). The sensors are distinct, so every profile adapts once: all sensors
         are handled in one pass of array operations (at 100 sensors a loop over them cost
-        more than the rest of the update).
+        more than the rest of the update). With ``compiled`` only the (component, sensor)
+        pairs within a sensor's distance limits are handled (:meth:`_frame_detection_pairs`);
+        this dense form is the reference.
         """
+        if self.compiled:
+            return self._frame_detection_pairs(scans, mix, xy, heavy, near, owner)
         cfg = self.config
         n_j, n_s = xy.shape[0], len(scans)
         origin = np.array([scan.origin for scan in scans])  # (S, 2)
@@ -1102,18 +1106,7 @@ class GmPhdTracker(Tracker):
         edges = np.asarray(cfg.detection_range_bins)
         n_a = angles.size + 1
         nb = (edges.size + 1) * n_a
-        profiles = np.empty((cols.size, nb))
-        for c, i in enumerate(cols.tolist()):
-            profile = self.detection_profiles.get(scans[i].sensor)
-            if profile is None or profile.size != nb:
-                # new sensor, or a profile learned with other bins (a config swapped on a
-                # live tracker): keep what was learned per distance when it can be kept
-                if profile is not None and profile.size == edges.size + 1:
-                    profile = np.repeat(profile, n_a)
-                else:
-                    profile = np.full(nb, cfg.detection_probability)
-                self.detection_profiles[scans[i].sensor] = profile
-            profiles[c] = profile
+        profiles = self._profiles(scans, cols, edges.size + 1, n_a)
         v = vis[:, cols]
         # profile cell of each component and sensor: distance bin x bearing bin (J, S')
         cell = np.searchsorted(edges, np.linalg.norm(d[:, cols], axis=2)) * n_a + abin[:, cols]
@@ -1132,20 +1125,126 @@ class GmPhdTracker(Tracker):
                     by_sensor[np.arange(owner.size), owner] = True
                     hit = (near.astype(np.int64) @ by_sensor[:, cols]) > 0
                 flat = (np.arange(cols.size) * nb + cell[heavy])[seen]
-                count = np.bincount(flat, minlength=cols.size * nb).reshape(cols.size, nb)
-                rate = np.bincount(flat, weights=hit[seen], minlength=cols.size * nb)
-                rate = rate.reshape(cols.size, nb)
-                # All sensors' profiles at once (``profiles`` holds them as they were): the
-                # bins with a count move towards their rate, then an updated profile is
-                # clipped as a whole. A loop over the sensors cost a third of the update.
-                upd = count > 0
-                moved = profiles.copy()
-                moved[upd] += cfg.adapt_rate * (rate[upd] / count[upd] - profiles[upd])
-                np.clip(
-                    moved, cfg.min_detection_probability, cfg.max_detection_probability, out=moved
-                )
-                for c in np.flatnonzero(upd.any(axis=1)).tolist():
-                    self.detection_profiles[scans[cols[c]].sensor][:] = moved[c]
+                self._adapt_profiles(scans, cols, profiles, flat, hit[seen])
+        return pd_js
+
+    def _profiles(
+        self, scans: Sequence[SensorScan], cols: npt.NDArray[np.intp], n_r: int, n_a: int
+    ) -> FloatArray:
+        """The detection profiles of the sensors of ``scans[cols]`` as rows, shape
+        (len(cols), n_r * n_a) (a copy; a new sensor's is created)."""
+        nb = n_r * n_a
+        profiles = np.empty((cols.size, nb))
+        for c, i in enumerate(cols.tolist()):
+            profile = self.detection_profiles.get(scans[i].sensor)
+            if profile is None or profile.size != nb:
+                # new sensor, or a profile learned with other bins (a config swapped on a
+                # live tracker): keep what was learned per distance when it can be kept
+                if profile is not None and profile.size == n_r:
+                    profile = np.repeat(profile, n_a)
+                else:
+                    profile = np.full(nb, self.config.detection_probability)
+                self.detection_profiles[scans[i].sensor] = profile
+            profiles[c] = profile
+        return profiles
+
+    def _adapt_profiles(
+        self,
+        scans: Sequence[SensorScan],
+        cols: npt.NDArray[np.intp],
+        profiles: FloatArray,
+        flat: npt.NDArray[np.intp],
+        hit: npt.NDArray[np.bool_],
+    ) -> None:
+        """Move the profile bins ``flat`` (row x bins + bin of ``profiles``, one per
+        established component in clear sight) towards the fraction with ``hit``."""
+        cfg = self.config
+        n_c, nb = profiles.shape
+        count = np.bincount(flat, minlength=n_c * nb).reshape(n_c, nb)
+        rate = np.bincount(flat, weights=hit, minlength=n_c * nb).reshape(n_c, nb)
+        # All sensors' profiles at once (``profiles`` holds them as they were): the bins with
+        # a count move towards their rate, then an updated profile is clipped as a whole. A
+        # loop over the sensors cost a third of the update.
+        upd = count > 0
+        moved = profiles.copy()
+        moved[upd] += cfg.adapt_rate * (rate[upd] / count[upd] - profiles[upd])
+        np.clip(moved, cfg.min_detection_probability, cfg.max_detection_probability, out=moved)
+        for c in np.flatnonzero(upd.any(axis=1)).tolist():
+            self.detection_profiles[scans[cols[c]].sensor][:] = moved[c]
+
+    def _frame_detection_pairs(
+        self,
+        scans: Sequence[SensorScan],
+        mix: _Mixture,
+        xy: FloatArray,
+        heavy: npt.NDArray[np.bool_],
+        near: npt.NDArray[np.bool_],
+        owner: npt.NDArray[np.intp] | None,
+    ) -> FloatArray:
+        """:meth:`_frame_detection` on the (component, sensor) pairs within the sensors'
+        distance limits only, found by one compiled loop (``kernels.range_pairs``), instead
+        of a dozen dense (J, S) arrays: at 48 sensors a sensor's range holds a few of the
+        components. Each pair gets the same element-wise operations as in the dense form
+        (numpy's ``arctan2``, ``arcsin`` and ``searchsorted`` included), so the same values
+        bit for bit (``tests/unit/tracking/test_frame_detection.py``)."""
+        cfg = self.config
+        n_j, n_s = xy.shape[0], len(scans)
+        pd_js = np.zeros((n_j, n_s))
+        origin = np.array([scan.origin for scan in scans])  # (S, 2)
+        hi2 = (np.array([scan.max_range for scan in scans]) + cfg.fov_margin) ** 2
+        lo2 = np.array([scan.min_range for scan in scans]) ** 2
+        j, s, dx, dy, r2 = kernels.range_pairs(xy, origin, hi2, lo2)
+        beamwidth = np.array([scan.beamwidth for scan in scans])
+        sector = beamwidth < 2.0 * math.pi
+        angles = np.asarray(cfg.detection_angle_bins)
+        abin = np.zeros(j.size, dtype=np.intp)
+        if sector.any() and j.size:
+            bearing = np.arctan2(dy, dx) - np.array([scan.boresight for scan in scans])[s]
+            off = np.abs((bearing + math.pi) % (2.0 * math.pi) - math.pi)
+            half, sec = (0.5 * beamwidth)[s], sector[s]
+            if angles.size:
+                abin = np.where(sec, np.searchsorted(angles, off / half), 0)
+            if cfg.fov_margin > 0.0:
+                with np.errstate(divide="ignore"):
+                    half = half + np.arcsin(np.minimum(1.0, cfg.fov_margin / np.sqrt(r2)))
+            keep = (off <= half) | ~sec
+            j, s, r2, abin = j[keep], s[keep], r2[keep], abin[keep]
+        if not j.size:
+            return pd_js
+        active = np.zeros(n_s, dtype=bool)
+        active[s] = True
+        cols = np.flatnonzero(active)
+        c = (np.cumsum(active) - 1)[s]  # each pair's row among the active sensors
+        edges = np.asarray(cfg.detection_range_bins)
+        n_a = angles.size + 1
+        nb = (edges.size + 1) * n_a
+        profiles = self._profiles(scans, cols, edges.size + 1, n_a)
+        cell = np.searchsorted(edges, np.sqrt(r2)) * n_a + abin
+        if self.sight is None:
+            sight = np.ones(j.size)
+        elif getattr(self.sight, "pairs", None) is not None:
+            sight = self.sight.pairs(origin[s], xy[j])
+        else:
+            sight = np.stack([self.sight(scans[i], xy) for i in cols.tolist()], axis=1)[j, c]
+        pd = profiles[c, cell] * sight
+        if cfg.occluded_factor < 1.0 and n_j > 1:
+            v = np.zeros((n_j, cols.size), dtype=bool)
+            v[j, c] = True
+            occluded = self._occluded_many(origin[cols], mix, v)[j, c]
+            pd *= np.where(occluded, cfg.occluded_factor, 1.0)
+        pd_js[j, s] = pd
+        if cfg.adapt_detection:
+            seen = heavy[j] & (sight >= 1.0)
+            if seen.any():
+                row = (np.cumsum(heavy) - 1)[j[seen]]  # each seen pair's row of ``near``
+                if owner is None:
+                    hit = near.any(axis=1)[row]
+                else:
+                    by_sensor = np.zeros((near.shape[1], n_s), bool)
+                    by_sensor[np.arange(owner.size), owner] = True
+                    hit = ((near.astype(np.int64) @ by_sensor[:, cols]) > 0)[row, c[seen]]
+                flat = c[seen] * nb + cell[seen]
+                self._adapt_profiles(scans, cols, profiles, flat, hit)
         return pd_js
 
     def _sights(

@@ -794,3 +794,48 @@ def wall_crossings(origins, xy, start, end, margin):  # pragma: no cover
             if u > margin and u < upper and s >= 0.0 and s <= 1.0:
                 out[k] += 1
     return out
+
+
+@_njit(
+    "Tuple((int64[:], int64[:], float64[:], float64[:], float64[:]))"
+    "(float64[:, :], float64[:, :], float64[:], float64[:])"
+)
+def range_pairs(xy, origin, hi2, lo2):  # pragma: no cover
+    """The (component, sensor) pairs of a frame within the sensors' distance limits
+    (``GmPhdTracker._frame_detection``): ``lo2[s] <= r2 <= hi2[s]`` with ``r2`` the squared
+    distance ``dx * dx + dy * dy`` from sensor ``s`` at ``origin[s]`` to the component at
+    ``xy[j]``, the same products and sum as the numpy reference's
+    ``einsum("jsi,jsi->js", d, d)``, so the same pairs.
+
+    Parameters
+    ----------
+    xy : ndarray, float64, shape (J, 2)
+        Component positions, world x, y, m.
+    origin : ndarray, float64, shape (S, 2)
+        Sensor array centres, m.
+    hi2, lo2 : ndarray, float64, shape (S,)
+        Squared largest and smallest distance, m².
+
+    Returns
+    -------
+    j, s : ndarray, int64, shape (P,)
+        The pairs, in row-major (j, s) order (that of ``np.nonzero`` on a (J, S) mask).
+    dx, dy, r2 : ndarray, float64, shape (P,)
+        ``xy[j] - origin[s]`` and its squared length.
+    """
+    n_j, n_s = xy.shape[0], origin.shape[0]
+    jj = np.empty(n_j * n_s, dtype=np.int64)
+    ss = np.empty(n_j * n_s, dtype=np.int64)
+    ddx = np.empty(n_j * n_s)
+    ddy = np.empty(n_j * n_s)
+    rr = np.empty(n_j * n_s)
+    n = 0
+    for j in range(n_j):
+        x, y = xy[j, 0], xy[j, 1]
+        for s in range(n_s):
+            dx, dy = x - origin[s, 0], y - origin[s, 1]
+            r2 = dx * dx + dy * dy
+            if r2 <= hi2[s] and r2 >= lo2[s]:
+                jj[n], ss[n], ddx[n], ddy[n], rr[n] = j, s, dx, dy, r2
+                n += 1
+    return jj[:n], ss[:n], ddx[:n], ddy[:n], rr[:n]

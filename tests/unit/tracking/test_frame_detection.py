@@ -202,3 +202,60 @@ def test_profile_bins_are_validated_and_a_profile_of_other_bins_is_rebuilt() -> 
     untouched = np.ones((6, 3), bool)
     untouched[2, 0] = False
     np.testing.assert_array_equal(profile[untouched], np.repeat(learned, 3)[untouched.ravel()])
+
+
+def _random_frame(rng: np.random.Generator, n_s: int, n_j: int) -> tuple:
+    """Sensors (sectors, all-round, blind zones, a few on a component) and a mixture of
+    ``n_j`` components around them, with the estimates near the heavy ones."""
+    from fusion_center.tracking.gmphd import _Mixture
+
+    m = np.zeros((n_j, 4))
+    m[:, ::2] = rng.uniform([-2.0, -2.0], [30.0, 10.0], (n_j, 2))
+    m[:, 1::2] = rng.normal(0.0, 0.5, (n_j, 2))
+    w = rng.choice([0.05, 0.4, 0.6, 0.9], n_j)
+    mix = _Mixture(w, m, np.broadcast_to(np.eye(4), (n_j, 4, 4)).copy(), rng.integers(0, 6, n_j))
+    xy = mix.m[:, ::2]
+    origins = rng.uniform([0.0, 0.0], [28.0, 8.0], (n_s, 2))
+    origins[: min(3, n_j)] = xy[:3]  # a sensor exactly on a component (zero distance)
+    scans, counts = [], rng.integers(0, 4, n_s)
+    for i in range(n_s):
+        pos = origins[i] + rng.normal(0.0, 3.0, (counts[i], 2))
+        scans.append(
+            SensorScan(
+                sensor=f"n{i:03d}", t=0.01 * i, positions=pos, cov=np.full((counts[i], 2, 2), 0.0),
+                origin=origins[i], boresight=float(rng.uniform(-math.pi, math.pi)),
+                beamwidth=float(rng.choice([2 * math.pi, 1.2, 2.0, 3.0])),
+                max_range=float(rng.choice([6.0, 9.0, 12.0])),
+                min_range=float(rng.choice([0.0, 0.8])),
+            )
+        )  # fmt: skip
+    z = np.concatenate([s.positions for s in scans])
+    owner = np.repeat(np.arange(n_s), counts)
+    heavy = w > 0.5
+    near = np.linalg.norm(xy[heavy, None, :] - z[None, :, :], axis=2) < 1.5
+    return scans, mix, xy, heavy, near, owner
+
+
+@pytest.mark.parametrize("walls", [False, True])
+def test_frame_detection_on_pairs_equals_the_dense_form_bit_for_bit(walls: bool) -> None:
+    """The compiled pairs' path (``kernels.range_pairs``) gives the dense reference's
+    detection probabilities and learned profiles exactly, frame after frame."""
+    sight = WallSightModel([[5.0, 0.0], [12.0, 3.0]], [[5.0, 3.0], [20.0, 3.0]]) if walls else None
+    pairs, dense = GmPhdTracker(), GmPhdTracker()
+    pairs.sight = dense.sight = sight
+    rng = np.random.default_rng(5)
+    some_hidden = False
+    for k in range(40):
+        scans, mix, xy, heavy, near, owner = _random_frame(rng, 48, int(rng.integers(1, 150)))
+        got = pairs._frame_detection(scans, mix, xy, heavy, near, owner if k % 4 else None)
+        dense.compiled = False
+        want = dense._frame_detection(scans, mix, xy, heavy, near, owner if k % 4 else None)
+        dense.compiled = True
+        np.testing.assert_array_equal(got, want)
+        some_hidden |= bool(((want > 0.0) & (want < 0.3)).any())
+    assert pairs.detection_profiles.keys() == dense.detection_profiles.keys()
+    for name, profile in dense.detection_profiles.items():
+        np.testing.assert_array_equal(pairs.detection_profiles[name], profile)
+    start = GmPhdTracker().config.detection_probability
+    assert any(np.abs(p - start).max() > 0.01 for p in dense.detection_profiles.values())
+    assert some_hidden  # occluded or behind a wall somewhere

@@ -230,3 +230,29 @@ def test_tracking_kernels_work_without_a_writable_numba_cache(tmp_path):
         out = tracker.step(0.02 * k, [scan])
     assert len(out.tracks) == 2
     assert res.stdout.strip() == str(np.round(out.positions(), 9).tolist())
+
+
+def test_range_pairs_kernel_matches_numpy():
+    """``kernels.range_pairs`` keeps the pairs the dense numpy test keeps (``einsum``
+    distances, the limits inclusive) in ``np.nonzero`` order, with the same differences."""
+    rng = np.random.default_rng(8)
+    for n_j, n_s in ((0, 5), (7, 0), (60, 48), (300, 13)):
+        xy = np.round(rng.uniform(-3.0, 30.0, (n_j, 4)), 1)[:, ::2]  # a strided view
+        origin = np.round(rng.uniform(0.0, 28.0, (n_s, 2)), 1)
+        if n_j and n_s:
+            origin[0] = xy[0]  # zero distance
+            origin[1] = xy[1] + [3.0, 4.0]  # exactly at a limit (5 m)
+        hi2 = rng.choice([25.0, 36.0, 81.0, 144.0], n_s)
+        lo2 = rng.choice([0.0, 0.64, 25.0], n_s)
+        d = xy[:, None, :] - origin[None, :, :]
+        r2 = np.einsum("jsi,jsi->js", d, d)
+        want_j, want_s = np.nonzero((r2 <= hi2) & (r2 >= lo2))
+        j, s, dx, dy, got_r2 = kernels.range_pairs(xy, origin, hi2, lo2)
+        np.testing.assert_array_equal(j, want_j)
+        np.testing.assert_array_equal(s, want_s)
+        np.testing.assert_array_equal(dx, d[j, s, 0])
+        np.testing.assert_array_equal(dy, d[j, s, 1])
+        np.testing.assert_array_equal(got_r2, r2[j, s])
+        np.testing.assert_array_equal(np.sqrt(got_r2), np.linalg.norm(d, axis=2)[j, s])
+        if n_j > 50:
+            assert 0 < j.size < n_j * n_s

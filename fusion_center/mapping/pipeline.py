@@ -24,6 +24,7 @@ from fusion_center.mapping.smoothing import (
     SmootherConfig,
     smoothed_landmark_set,
 )
+from fusion_center.mapping.turn_closure import EchoBearingTurnCloser, TurnClosureConfig
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -86,6 +87,17 @@ class MapperConfig:
         prediction, marked ``provisional`` (a live view then never goes without a pose); the
         revised estimates still follow after the replay. Off for offline use, where the
         trajectory holds only the revised estimates.
+    turn_closure : bool
+        Hold each stop's acquisitions until the robot drives on, estimate the turn's heading
+        errors from the stop's own echoes (:mod:`fusion_center.mapping.turn_closure`: the
+        reflectors seen at the start of a turn come back into view at its end) and give the
+        filter the corrected odometry. The outputs of a stop then come out when it ends (with
+        ``provisional_poses``, at once as the odometry's prediction too).
+    turn_closure_max : int
+        Acquisitions held at most for one turn (a robot that never drives on).
+    turn_closure_translation : float
+        Path length, m, within a held stop beyond which it is not a turn on the spot and its
+        odometry is left alone.
     """
 
     min_range: float = 1.2
@@ -101,6 +113,9 @@ class MapperConfig:
     drive_reset: float = 0.1
     provisional_poses: bool = False
     keep_history: bool = False
+    turn_closure: bool = False
+    turn_closure_max: int = 240
+    turn_closure_translation: float = 0.05
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -170,6 +185,21 @@ class EchoSlamMapper:
         # and its final (not provisional) pose estimate by time
         self._history: list[tuple[float, FloatArray | None, FloatArray, npt.NDArray]] = []
         self._final: dict[float, FloatArray] = {}
+        fc = self.filter.config
+        self.turn_closer = EchoBearingTurnCloser(
+            self.filter._rx_body,
+            TurnClosureConfig(slip_rotation=fc.slip_rotation, slip_floor=fc.slip_floor[1]),
+        )
+        # acquisitions of the current stop held for its turn closure: t, odometry, all pairs
+        # and their ids, the pairs for the filter and their ids, the echo groups still live
+        self._stop: list[
+            tuple[
+                float, FloatArray | None, FloatArray, npt.NDArray, FloatArray, npt.NDArray, set[int]
+            ]
+        ] = []
+        self._stop_provisional = 0
+        #: stops whose odometry the turn closure corrected, and the corrections at their ends
+        self.turn_corrections: list[float] = []
 
     def step(
         self, t: float, h: npt.NDArray, odometry: npt.ArrayLike | None = None
@@ -199,6 +229,7 @@ class EchoSlamMapper:
             out += self._pairs(pair_echoes(echoes, self.config.pair_gate))
         while self._queue:
             out += self._filter(*self._queue.popleft())
+        out += self._close_turn()
         self.filter.flush()
         return out + self._release()
 
@@ -219,22 +250,87 @@ class EchoSlamMapper:
     def _filter(
         self, t: float, odo: FloatArray | None, z: FloatArray, ids: npt.NDArray
     ) -> list[MapperOutput]:
-        f = self.filter
-        if self._last_t is not None:
-            f.predict(t - self._last_t, odo)
-        self._last_t = t
+        z_all, ids_all = z, ids
         if self.measurement_space:
             hits = self.grouper.hits
             keep = np.array([hits.get(int(g), 0) >= self.config.confirm for g in ids], bool)
             z, ids = z[keep], ids[keep]
+        live: set[int] = set()
+        if self.measurement_space:
+            live = {int(g) for q in self._queue for g in q[3]} | set(ids.tolist())
+            self.grouper.hits = {g: n for g, n in self.grouper.hits.items() if g in live}
+        if not self.config.turn_closure:
+            return self._feed(t, odo, z, ids, live)
+        out: list[MapperOutput] = []
+        drive = odo is not None and np.hypot(odo[0], odo[1]) > self.config.drive_reset
+        if self._stop and (drive or len(self._stop) >= self.config.turn_closure_max):
+            out += self._close_turn()
+        self._stop.append((t, odo, z_all, ids_all, z, ids, live))
+        if self.config.provisional_poses:
+            out += self._stop_provisionals()
+        return out
+
+    def _close_turn(self) -> list[MapperOutput]:
+        """Correct the held stop's odometry by its turn closure and pass it to the filter."""
+        stop, self._stop = self._stop, []
+        self._stop_provisional = 0
+        if not stop:
+            return []
+        odos = [np.zeros(3) if s[1] is None else np.asarray(s[1], float) for s in stop]
+        path = sum(float(np.hypot(o[0], o[1])) for o in odos[1:])
+        step = np.zeros(len(stop))
+        if len(stop) > 2 and path <= self.config.turn_closure_translation:
+            res = self.turn_closer.close(
+                np.array([o[2] for o in odos]), [s[2] for s in stop], [s[3] for s in stop]
+            )
+            if np.isfinite(res.end_sigma):
+                step = np.diff(res.correction, prepend=0.0)
+                self.turn_corrections.append(float(res.correction[-1]))
+        out: list[MapperOutput] = []
+        for (t, odo, _, _, z, ids, live), d in zip(stop, step, strict=True):
+            if odo is not None and d != 0.0:
+                odo = odo + np.array([0.0, 0.0, d])
+            # their provisional poses went out while the stop was held
+            out += [o for o in self._feed(t, odo, z, ids, live) if not o.provisional]
+        if self.filter.holding:
+            self._provisional_sent = len(self._pending)
+        return out
+
+    def _stop_provisionals(self) -> list[MapperOutput]:
+        """The held stop's acquisitions not yet output, as the odometry's prediction from
+        the filter's current estimate (marked ``provisional``)."""
+        est = self.filter.estimate()
+        pose = est.pose.copy()
+        out = []
+        for i, (t, odo, z_all, *_rest) in enumerate(self._stop):
+            if odo is not None:
+                c, s = np.cos(pose[2]), np.sin(pose[2])
+                pose = pose + np.array([c * odo[0] - s * odo[1], s * odo[0] + c * odo[1], odo[2]])
+            if i >= self._stop_provisional:
+                e = PoseEstimate2D(pose=pose.copy(), cov=est.cov)
+                out.append(MapperOutput(t=t, estimate=e, pairs=len(z_all), provisional=True))
+        self._stop_provisional = len(self._stop)
+        return out
+
+    def _feed(
+        self,
+        t: float,
+        odo: FloatArray | None,
+        z: FloatArray,
+        ids: npt.NDArray,
+        live: set[int],
+    ) -> list[MapperOutput]:
+        """One acquisition through the filter."""
+        f = self.filter
+        if self._last_t is not None:
+            f.predict(t - self._last_t, odo)
+        self._last_t = t
         f.update(z, ids)
         self.pairs_used += z.shape[0]
         if self.config.keep_history:
             self._history.append((t, odo, z, ids))
         if self.measurement_space:
-            live = {int(g) for q in self._queue for g in q[3]} | set(ids.tolist())
             f.forget_groups(live)
-            self.grouper.hits = {g: n for g, n in self.grouper.hits.items() if g in live}
         self._pending.append((t, int(z.shape[0])))
         return self._release()
 

@@ -11,8 +11,9 @@ for which a published, measurement-based figure exists, next to that figure and 
 * ``rms_delay_spread``: power-weighted RMS delay spread of the drawn paths, ns, reported as
   mean and standard deviation of its log10 (in s) as 3GPP tabulates it. Published (same
   table, InH-Office, carrier below 6 GHz taken as 6 GHz as the table prescribes):
-  LOS lgDS -7.70 +- 0.18 (20 ns), NLOS -7.41 +- 0.14 (39 ns). These are offices of
-  100-1000 m2, so smaller furnished rooms may well have shorter spreads; only the NLOS/LOS
+  LOS lgDS -7.70 +- 0.18 (20 ns), NLOS -7.41 +- 0.14 (39 ns), shown for the residential
+  and office environments only. They describe large offices (3GPP's InH layout is a floor
+  of 120 m x 50 m), so furnished rooms may well have shorter spreads; only the NLOS/LOS
   ratio (about 2) is a like-for-like check.
 * ``rx_minus_fp_db``: received power over first-path power at the DW1000-like front end of
   :mod:`uwbnet.nlos_loeo` (SNR 20-40 dB), taken as ``-fp_energy_db`` of
@@ -54,6 +55,9 @@ LOS in the industrial hall."""
 PUBLISHED_LG_DELAY_SPREAD = {"LOS": (-7.70, 0.18), "NLOS": (-7.41, 0.14)}
 """(mean, std) of log10(RMS delay spread / 1 s), 3GPP TR 38.901 Table 7.5-6, InH-Office at
 6 GHz (the table's floor for lower carriers)."""
+
+ROOMS = ("residential", "office")
+"""Environments compared with 3GPP's InH-Office delay spreads."""
 
 DECAWAVE_RX_FP_DB = (6.0, 10.0)
 """Received minus first-path power, dB: under the first LOS is likely, over the second NLOS
@@ -136,7 +140,10 @@ def comparison(
                 "published_k_factor_db": (
                     list(PUBLISHED_K_FACTOR_DB[name]) if cls == "LOS" else None
                 ),
-                "published_lg_delay_spread": list(PUBLISHED_LG_DELAY_SPREAD[cls]),
+                # 3GPP's InH-Office spreads stand for the rooms only
+                "published_lg_delay_spread": (
+                    list(PUBLISHED_LG_DELAY_SPREAD[cls]) if name in ROOMS else None
+                ),
                 "direct_loss_db": list(env.direct_loss_db),
             }
             out[f"{name} {cls}"] = row

@@ -37,7 +37,7 @@ than the report's CM1; the direct path is drawn apart from the clusters with a m
 level of our own (``multipath_db``); fading is Rayleigh, not Nakagami; the office NLOS class
 has one cluster. A version that follows the report's reference parameters exists (branch
 ``issue4``, commit 72f4381) and made every figure we can measure worse, so it is not used.
-The LOS classes' multipath carries 4-15 dB more power, relative to the direct path, than the
+The LOS classes' multipath carries 11-22 dB more power, relative to the direct path, than the
 measured K-factors of 3GPP TR 38.901 (about 7 dB; :mod:`uwbnet.nlos_published`);
 ``ChannelClass.k_factor_db`` sets a class's multipath level from a K-factor instead.
 """

@@ -74,10 +74,12 @@ def environment_sets(
     test_snr_db: tuple[float, float] = (10.0, 30.0),
     decay_factor: tuple[float, float] = (0.6, 1.6),
     cache: Path | None = None,
+    pair: tuple[ChannelClass, ChannelClass] | None = None,
 ) -> tuple[Features, Features]:
     """Training features (training radars) and held-out features (DW1000-like, SNR uniform
-    in ``test_snr_db``) of one environment; cached under ``cache`` when given."""
-    los, nlos = ENVIRONMENTS[name]
+    in ``test_snr_db``) of one environment; cached under ``cache`` when given. ``pair``
+    replaces the environment's (LOS, NLOS) classes of :data:`ENVIRONMENTS`."""
+    los, nlos = pair if pair is not None else ENVIRONMENTS[name]
     classes = [(los, False), (nlos, True)]
     # what else shapes the features: a cache drawn with other channel parameters, decay
     # randomisation or feature set must not be reused
@@ -204,7 +206,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--n-test", type=int, default=200, help="held-out channels per class")
     p.add_argument("--test-snr", type=float, nargs=2, default=(10.0, 30.0), metavar=("LO", "HI"))
     p.add_argument("--cache", type=Path, default=None)
+    p.add_argument(
+        "--published-k",
+        action="store_true",
+        help="LOS classes with the published K-factors (uwbnet.nlos_published)",
+    )
     a = p.parse_args(argv)
+    from uwbnet.nlos_published import with_published_k_factor  # it imports this module
+
     sets = {
         e: environment_sets(
             e,
@@ -213,6 +222,7 @@ def main(argv: list[str] | None = None) -> None:
             n_test=a.n_test,
             test_snr_db=tuple(a.test_snr),
             cache=a.cache,
+            pair=with_published_k_factor(e) if a.published_k else None,
         )
         for i, e in enumerate(ENVIRONMENTS)
     }

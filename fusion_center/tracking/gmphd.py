@@ -1191,8 +1191,12 @@ class GmPhdTracker(Tracker):
         n_j, n_s = xy.shape[0], len(scans)
         pd_js = np.zeros((n_j, n_s))
         origin = np.array([scan.origin for scan in scans])  # (S, 2)
-        hi2 = (np.array([scan.max_range for scan in scans]) + cfg.fov_margin) ** 2
-        lo2 = np.array([scan.min_range for scan in scans]) ** 2
+        # float64 after the arithmetic: the kernel takes float64 only, and integer or float32
+        # limits (a scan built by hand) must square as the dense form squares them
+        hi2 = ((np.array([scan.max_range for scan in scans]) + cfg.fov_margin) ** 2).astype(
+            np.float64, copy=False
+        )
+        lo2 = (np.array([scan.min_range for scan in scans]) ** 2).astype(np.float64, copy=False)
         j, s, dx, dy, r2 = kernels.range_pairs(xy, origin, hi2, lo2)
         beamwidth = np.array([scan.beamwidth for scan in scans])
         sector = beamwidth < 2.0 * math.pi

@@ -3,6 +3,7 @@ per-sensor loop they replaced (same tracks, same learned detection profiles)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -259,3 +260,21 @@ def test_frame_detection_on_pairs_equals_the_dense_form_bit_for_bit(walls: bool)
     start = GmPhdTracker().config.detection_probability
     assert any(np.abs(p - start).max() > 0.01 for p in dense.detection_profiles.values())
     assert some_hidden  # occluded or behind a wall somewhere
+
+
+@pytest.mark.parametrize("limit", [int, np.float32])
+def test_frame_detection_on_pairs_takes_the_limits_any_real_type(limit: type) -> None:
+    """Scans built by hand with integer (``min_range=0``) or float32 distance limits give
+    the dense form's probabilities, not a type error from the compiled kernel."""
+    rng = np.random.default_rng(11)
+    scans, mix, xy, heavy, near, owner = _random_frame(rng, 12, 40)
+    scans = [
+        dataclasses.replace(s, max_range=limit(round(s.max_range)), min_range=limit(0))
+        for s in scans
+    ]
+    pairs, dense = GmPhdTracker(), GmPhdTracker()
+    dense.compiled = False
+    got = pairs._frame_detection(scans, mix, xy, heavy, near, owner)
+    want = dense._frame_detection(scans, mix, xy, heavy, near, owner)
+    np.testing.assert_array_equal(got, want)
+    assert (want > 0.0).any()

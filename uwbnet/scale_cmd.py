@@ -47,6 +47,14 @@ class ScaleError(RuntimeError):
     """A scale run cannot start or did not come up (one-line message)."""
 
 
+#: Default radar window of a scale test, m of bistatic range. The simulator leaves people
+#: beyond PEOPLE_RANGE (20 m) of a node out, so no person's echo lies beyond about
+#: 2 x (20 + 0.8) m; 45 m keeps all of them and a margin, and cuts the noise drawn and the
+#: samples the node DSP processes from 4,095 to 1,051 (docs/capacity.md, tenth round: CPU per
+#: acquisition all in 0.43 -> 0.34 ms at 64 nodes, eval figures unchanged).
+IR_WINDOW = 45.0
+
+
 @dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
 class ScaleConfig:
     """Parameters of ``uwbnet scale`` (see ``--help``)."""
@@ -93,7 +101,8 @@ class ScaleConfig:
     # the simulated radar window, m of bistatic range: the node processes' simulator delivers
     # (and node_info declares) only the impulse-response samples up to it, with the thermal
     # noise drawn for those only (SimNetwork window); None: the whole 4,095-sample period
-    ir_window: float | None = None
+    # (175 m). Default: IR_WINDOW
+    ir_window: float | None = IR_WINDOW
     # --threads batch: one thread per node process publishes frame f's messages at their
     # release and then computes frame f + 1, ahead (SlotOrderGroup pipeline = one frame): one
     # wake-up per frame instead of two (acquisition and publisher threads)
@@ -462,6 +471,11 @@ def analyse(
     return {
         "nodes": cfg.nodes,
         "people": cfg.people,
+        # the options that change the CPU per acquisition, so that runs can be told apart
+        "ir_window": cfg.ir_window,
+        "max_range": cfg.max_range,
+        "batches_per_wake": cfg.batches_per_wake,
+        "pipeline": cfg.pipeline,
         "p50_latency_ms": round(float(np.percentile(lat_ms, 50)), 2) if lat_ms.size else None,
         "p99_latency_ms": round(float(np.percentile(lat_ms, 99)), 2) if lat_ms.size else None,
         "max_latency_ms": round(float(lat_ms.max()), 2) if lat_ms.size else None,

@@ -181,8 +181,11 @@ def sim_window(cfg: dict[str, Any], radar: Any) -> int | None:
     metres = cfg.get("ir_window")
     if metres is None:
         return None
-    k = math.floor((metres / C - radar.t0) * radar.fs + 1e-9) + 1
-    return min(max(k, 1), radar.n)
+    # compared before the floor: a huge window (1e308 m) would overflow the integer
+    samples = (metres / C - radar.t0) * radar.fs + 1e-9
+    if not samples < radar.n:
+        return radar.n
+    return max(math.floor(samples) + 1, 1)
 
 
 def agent_config(cfg: dict[str, Any], node: str) -> Any:

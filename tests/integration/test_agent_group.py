@@ -338,6 +338,26 @@ class _SlowAgent(_FakeAgent):
         return super().serve(slot, late=late)
 
 
+def test_a_pipelined_group_stopped_while_a_frame_served_ahead_waits_publishes_it_at_its_slots():
+    """Stopping between a frame served ahead and its release: every message still leaves
+    once, and none before its frame's slots (review of stop 22)."""
+    t0 = time.time() + 0.1
+    a = _FakeAgent("a", [t0, t0 + 0.060])
+    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.063])
+    _FakeDriver.batches = []
+    group = SlotOrderGroup([a, b], batch_window=0.01, pipeline=0.07)  # type: ignore[list-item]
+    group.start()
+    try:
+        _wait_for(lambda: len(a.served) == 2, 5.0, "frame 1 served ahead")
+        assert time.time() < b.served[1][0]  # frame 1's release is still to come
+    finally:
+        group.stop()
+    assert [len(x.published) for x in (a, b)] == [2, 2]
+    for f in range(2):
+        assert all(x.published[f][1] >= b.served[f][0] for x in (a, b))
+        assert all(x.published[f][0] == 1 for x in (a, b))
+
+
 def test_stopping_during_a_batch_publishes_every_served_slot_after_its_release():
     t0 = time.time() + 0.05
     agents = [_SlowAgent(n, [t0 + 0.003 * k]) for k, n in enumerate("abc")]

@@ -8,6 +8,7 @@ and is skipped with the printed reason otherwise.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -123,4 +124,20 @@ def test_ir_window_is_the_samples_up_to_its_range():
     # the last sample's range is within the window, the next one's beyond it
     assert k == 1051 and (k - 1) * C / radar.fs <= 45.0 < k * C / radar.fs
     assert sim_window({"ir_window": 1e4}, radar) == radar.n
+    assert sim_window({"ir_window": 1e308}, radar) == radar.n  # no integer overflow
     assert sim_window({"ir_window": 1e-6}, radar) == 1
+
+
+def test_ir_window_defaults_to_the_scale_window_and_full_is_the_whole_period():
+    from uwbnet.cli import build_parser
+    from uwbnet.scale_cmd import IR_WINDOW, ScaleConfig
+
+    parser = build_parser()
+    assert not hasattr(parser.parse_args(["scale", "--nodes", "4"]), "ir_window")
+    defaults = {f.name: f.default for f in dataclasses.fields(ScaleConfig)}
+    assert defaults["ir_window"] == IR_WINDOW
+    assert parser.parse_args(["scale", "--nodes", "4", "--ir-window", "full"]).ir_window is None
+    assert parser.parse_args(["scale", "--nodes", "4", "--ir-window", "30"]).ir_window == 30.0
+    # the help states the default the command uses
+    scale = parser._subparsers._group_actions[0].choices["scale"]
+    assert f"default {IR_WINDOW:g};" in " ".join(scale.format_help().split())

@@ -88,16 +88,25 @@ class MapperConfig:
         revised estimates still follow after the replay. Off for offline use, where the
         trajectory holds only the revised estimates.
     turn_closure : bool
-        Hold each stop's acquisitions until the robot drives on, estimate the turn's heading
+        Offline only (``uwbnet map`` and the live mapping service do not set it; the live
+        service's pose stream would drop the corrected poses, see docs/mapping.md). Hold
+        each stop's acquisitions until the robot drives on, estimate the turn's heading
         errors from the stop's own echoes (:mod:`fusion_center.mapping.turn_closure`: the
-        reflectors seen at the start of a turn come back into view at its end) and give the
-        filter the corrected odometry. The outputs of a stop then come out when it ends (with
-        ``provisional_poses``, at once as the odometry's prediction too).
+        reflectors seen at the start of a turn come back into view at its end; a stop is
+        corrected only when at least ``TurnClosureConfig.min_links`` = 2 reflectors are seen
+        in both its first and its last third) and give the filter the corrected odometry.
+        The outputs of a stop then come out when it ends (with ``provisional_poses``, at
+        once as the odometry's prediction too). An acquisition without odometry is not
+        held: it ends the held stop and passes straight on (the turn after it is a new
+        stop), so a stream without odometry has no added latency.
     turn_closure_max : int
-        Acquisitions held at most for one turn (a robot that never drives on).
+        Acquisitions held at most for one stop (a robot that never drives on), >= 3. It
+        counts acquisitions, not rotation: it must exceed the steps of one turn (room_pillar:
+        121), or the turn is cut in parts that each fall short of ``min_turn`` and are left
+        uncorrected (a 357-degree turn in 1-degree steps needs more than the default 240).
     turn_closure_translation : float
-        Path length, m, within a held stop beyond which it is not a turn on the spot and its
-        odometry is left alone.
+        Path length, m (>= 0), within a held stop beyond which it is not a turn on the spot:
+        the stop is then passed on at once, its odometry left alone, and a new one begins.
     """
 
     min_range: float = 1.2
@@ -116,6 +125,14 @@ class MapperConfig:
     turn_closure: bool = False
     turn_closure_max: int = 240
     turn_closure_translation: float = 0.05
+
+    def __post_init__(self) -> None:
+        m = self.turn_closure_max
+        if isinstance(m, bool) or not isinstance(m, int | np.integer) or m < 3:
+            raise ValueError(f"MapperConfig.turn_closure_max must be an integer >= 3, got {m!r}")
+        d = self.turn_closure_translation
+        if not (np.isfinite(d) and d >= 0.0):
+            raise ValueError(f"MapperConfig.turn_closure_translation must be >= 0, got {d!r}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -198,6 +215,8 @@ class EchoSlamMapper:
             ]
         ] = []
         self._stop_provisional = 0
+        # path length of the held stop after its first acquisition, m
+        self._stop_path = 0.0
         #: stops whose odometry the turn closure corrected, and the corrections at their ends
         self.turn_corrections: list[float] = []
 
@@ -261,11 +280,21 @@ class EchoSlamMapper:
             self.grouper.hits = {g: n for g, n in self.grouper.hits.items() if g in live}
         if not self.config.turn_closure:
             return self._feed(t, odo, z, ids, live)
+        if odo is None:
+            # no odometry: nothing to correct and the turn's steps are no longer known
+            # end to end, so end the held stop and pass this acquisition on unheld
+            return self._close_turn() + self._feed(t, odo, z, ids, live)
         out: list[MapperOutput] = []
-        drive = odo is not None and np.hypot(odo[0], odo[1]) > self.config.drive_reset
+        shift = float(np.hypot(odo[0], odo[1]))
+        drive = shift > self.config.drive_reset
         if self._stop and (drive or len(self._stop) >= self.config.turn_closure_max):
             out += self._close_turn()
+        if self._stop:
+            self._stop_path += shift
         self._stop.append((t, odo, z_all, ids_all, z, ids, live))
+        if self._stop_path > self.config.turn_closure_translation:
+            # not a turn on the spot: it can no longer qualify, so stop holding it
+            return out + self._close_turn()
         if self.config.provisional_poses:
             out += self._stop_provisionals()
         return out
@@ -274,10 +303,11 @@ class EchoSlamMapper:
         """Correct the held stop's odometry by its turn closure and pass it to the filter."""
         stop, self._stop = self._stop, []
         self._stop_provisional = 0
+        path, self._stop_path = self._stop_path, 0.0
         if not stop:
             return []
-        odos = [np.zeros(3) if s[1] is None else np.asarray(s[1], float) for s in stop]
-        path = sum(float(np.hypot(o[0], o[1])) for o in odos[1:])
+        # every held acquisition has odometry (``_filter`` passes the others on unheld)
+        odos = [np.asarray(s[1], float) for s in stop]
         step = np.zeros(len(stop))
         if len(stop) > 2 and path <= self.config.turn_closure_translation:
             res = self.turn_closer.close(
@@ -288,7 +318,7 @@ class EchoSlamMapper:
                 self.turn_corrections.append(float(res.correction[-1]))
         out: list[MapperOutput] = []
         for (t, odo, _, _, z, ids, live), d in zip(stop, step, strict=True):
-            if odo is not None and d != 0.0:
+            if d != 0.0:
                 odo = odo + np.array([0.0, 0.0, d])
             # their provisional poses went out while the stop was held
             out += [o for o in self._feed(t, odo, z, ids, live) if not o.provisional]

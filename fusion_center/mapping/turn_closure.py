@@ -62,9 +62,12 @@ class TurnClosureConfig:
         Smallest turn (sum of the odometry's steps), rad, for which the first and last
         acquisitions can see the same reflectors; shorter turns are left alone.
     min_links : int
-        Reflectors seen both before and after the wrap (with at least ``min_link_pairs``
-        pairs on each side) the closure needs; otherwise no correction.
+        Reflectors seen both in the first and in the last third of the turn (with at least
+        ``min_link_pairs`` pairs in each) the closure needs; otherwise no correction. The
+        default, 2, means two distinct reflectors: one alone (often far clutter) is not
+        trusted.
     min_link_pairs : int
+        Pairs a reflector needs in each of the two thirds to count as a link.
     cauchy_scale : float
         Scale of the Cauchy reweighting, in bearing sigmas.
     iterations : int
@@ -72,6 +75,14 @@ class TurnClosureConfig:
     max_correction : float
         Largest accepted correction at the end of the turn, rad (a larger one is a wrong
         link: no correction).
+    cluster_noise : bool
+        Scale each reflector's bearing noise by its robust residual scatter.
+
+    Raises
+    ------
+    ValueError
+        A non-positive noise, gate, scale or turn, a negative ``slip_rotation``, or
+        ``min_links``, ``min_link_pairs`` or ``iterations`` below 1.
     """
 
     range_sigma: float = 0.01
@@ -86,6 +97,29 @@ class TurnClosureConfig:
     iterations: int = 6
     max_correction: float = np.radians(8.0)
     cluster_noise: bool = True
+
+    def __post_init__(self) -> None:
+        # a zero floor makes a zero odometry step a zero-variance prior (1/0 in the solve)
+        for name in (
+            "range_sigma",
+            "slip_floor",
+            "link_range",
+            "link_bearing",
+            "min_turn",
+            "cauchy_scale",
+            "max_correction",
+        ):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0.0):
+                raise ValueError(f"TurnClosureConfig.{name} must be > 0, got {v!r}")
+        if not (np.isfinite(self.slip_rotation) and self.slip_rotation >= 0.0):
+            raise ValueError(
+                f"TurnClosureConfig.slip_rotation must be >= 0, got {self.slip_rotation!r}"
+            )
+        for name in ("min_links", "min_link_pairs", "iterations"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"TurnClosureConfig.{name} must be an integer >= 1, got {v!r}")
 
 
 @dataclass(frozen=True, slots=True)

@@ -3,24 +3,32 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fusion_center.mapping import EchoSlamMapper, MapperConfig
 from fusion_center.mapping.grouping import KalmanEchoGrouper
+from fusion_center.mapping.rbpf import PoseEstimate2D
 from fusion_center.mapping.synthetic import echo_pairs, rectangle_room
-from fusion_center.mapping.turn_closure import EchoBearingTurnCloser, TurnClosure
+from fusion_center.mapping.turn_closure import (
+    EchoBearingTurnCloser,
+    TurnClosure,
+    TurnClosureConfig,
+)
 from sim_nodes.robot_record import odometry_increments
 
 ANTENNAS = np.array([[0.0, 0.0], [0.0, 0.5], [0.0, -0.5]])
 
 
-def _turn(total_deg: float, seed: int) -> tuple[np.ndarray, np.ndarray, list, list]:
+def _turn(
+    total_deg: float, seed: int, yaw0: float = 0.4
+) -> tuple[np.ndarray, np.ndarray, list, list]:
     """A robot turning on the spot in 3-degree steps in a 6 x 5 m room: the true headings
     (rad, relative to the first), the odometry's steps (the robot recorder's slip noise)
     and the echo pairs with their Kalman echo-track ids."""
     rng = np.random.default_rng(seed)
     n = round(total_deg / 3.0) + 1
     true = np.radians(3.0) * np.arange(n)
-    start = np.array([2.4, 2.1, 0.4])
+    start = np.array([2.4, 2.1, yaw0])
     poses = np.column_stack([np.full(n, start[0]), np.full(n, start[1]), start[2] + true])
     dyaw = odometry_increments(poses, rng)[:, 2]
     room = rectangle_room()
@@ -39,8 +47,9 @@ def test_the_turn_closure_recovers_the_heading_error_at_the_end_of_a_turn() -> N
     for seed in range(1, 7):
         true, dyaw, pairs, ids = _turn(357.0, seed)
         odo_err = true - np.cumsum(np.r_[0.0, dyaw[1:]])
-        res = EchoBearingTurnCloser(ANTENNAS[1:]).close(dyaw, pairs, ids)
-        assert res.links >= 1 and res.end_sigma < np.radians(0.6)
+        closer = EchoBearingTurnCloser(ANTENNAS[1:])
+        res = closer.close(dyaw, pairs, ids)
+        assert res.links >= closer.config.min_links and res.end_sigma < np.radians(0.6)
         left = res.correction[-1] - odo_err[-1]
         assert abs(left) < 3.0 * res.end_sigma  # the estimate's own uncertainty holds
         before.append(abs(odo_err[-1]))
@@ -54,6 +63,47 @@ def test_a_half_turn_does_not_close_and_is_left_alone() -> None:
     res = EchoBearingTurnCloser(ANTENNAS[1:]).close(dyaw, pairs, ids)
     assert not np.isfinite(res.end_sigma)
     assert np.all(res.correction == 0.0)
+
+
+def test_a_turn_with_one_closing_reflector_is_left_alone() -> None:
+    # the gate is two reflectors in the first and the last third (min_links = 2): this
+    # turn drifts by about 6 degrees but sees only one reflector at both ends
+    true, dyaw, pairs, ids = _turn(357.0, seed=1, yaw0=np.pi)
+    assert np.degrees(abs(true[-1] - np.sum(dyaw[1:]))) > 3.0
+    res = EchoBearingTurnCloser(ANTENNAS[1:]).close(dyaw, pairs, ids)
+    assert res.links == 1 and not np.isfinite(res.end_sigma)
+    assert np.all(res.correction == 0.0)
+    one = EchoBearingTurnCloser(ANTENNAS[1:], TurnClosureConfig(min_links=1))
+    assert np.isfinite(one.close(dyaw, pairs, ids).end_sigma)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"slip_floor": 0.0}, "slip_floor must be > 0"),
+        ({"range_sigma": -0.01}, "range_sigma must be > 0"),
+        ({"slip_rotation": -0.1}, "slip_rotation must be >= 0"),
+        ({"min_links": 0}, "min_links must be an integer >= 1"),
+        ({"iterations": 0}, "iterations must be an integer >= 1"),
+        ({"max_correction": float("nan")}, "max_correction must be > 0"),
+    ],
+)
+def test_the_closure_settings_are_checked(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        TurnClosureConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"turn_closure_max": 0}, "turn_closure_max must be an integer >= 3"),
+        ({"turn_closure_max": 2.5}, "turn_closure_max must be an integer >= 3"),
+        ({"turn_closure_translation": -0.05}, "turn_closure_translation must be >= 0"),
+    ],
+)
+def test_the_mapper_turn_closure_settings_are_checked(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        MapperConfig(**kwargs)
 
 
 class _OdometryLog:
@@ -101,7 +151,7 @@ def test_the_mapper_holds_a_stop_until_the_drive_and_corrects_its_odometry() -> 
     mapper.turn_closer = _FixedCloser()  # type: ignore[assignment]
     rng = np.random.default_rng(0)
     turn, drive = np.array([0.0, 0.0, 0.05]), np.array([1.5, 0.0, 0.0])
-    odo = [None] + [turn] * 4 + [drive] + [turn] * 3
+    odo = [drive] + [turn] * 4 + [drive] + [turn] * 3
     out = []
     for k, o in enumerate(odo):
         got = mapper.step(float(k), rng.normal(0.0, 1e-3, (2, 512)).astype(np.float32), o)
@@ -117,3 +167,126 @@ def test_the_mapper_holds_a_stop_until_the_drive_and_corrects_its_odometry() -> 
     assert np.allclose([g[2] for g in got[:4]], 0.05 + 0.03 / 4)
     assert np.allclose(got[4], drive)
     assert np.allclose([g[2] for g in got[5:]], 0.05 + 0.03 / 3)
+
+
+def _mapper(**config: object) -> EchoSlamMapper:
+    """A turn-closing mapper with the odometry-logging filter and the fixed closer."""
+    mapper = EchoSlamMapper(
+        ANTENNAS,
+        fs=32.4e9,
+        t0=0.0,
+        bandwidth=8.9e9,
+        config=MapperConfig(warmup=0, lag=0, turn_closure=True, **config),  # type: ignore[arg-type]
+    )
+    mapper.filter = _OdometryLog(mapper.filter.config)  # type: ignore[assignment]
+    mapper.turn_closer = _FixedCloser()  # type: ignore[assignment]
+    return mapper
+
+
+def _run(mapper: EchoSlamMapper, odo: list) -> list[list]:
+    rng = np.random.default_rng(0)
+    return [
+        mapper.step(float(k), rng.normal(0.0, 1e-3, (2, 512)).astype(np.float32), o)
+        for k, o in enumerate(odo)
+    ]
+
+
+def test_without_odometry_the_mapper_holds_nothing() -> None:
+    # nothing to correct: every acquisition comes out final at once, not in bursts
+    mapper = _mapper(turn_closure_max=4)
+    per_step = _run(mapper, [None] * 10)
+    assert [[g.t for g in got] for got in per_step] == [[float(k)] for k in range(10)]
+    assert not any(g.provisional for got in per_step for g in got)
+    assert mapper.finish() == []
+
+
+def test_a_robot_creeping_on_is_not_held_as_a_turn() -> None:
+    # 6 cm per acquisition: below the drive reset, above the turn's translation bound
+    creep = np.array([0.06, 0.0, 0.01])
+    mapper = _mapper()
+    per_step = _run(mapper, [creep] * 12)
+    # out at once or with the next acquisition (the stop closes once its path exceeds 5 cm)
+    assert all(k - g.t <= 1 for k, got in enumerate(per_step) for g in got)
+    assert [g.t for got in per_step for g in got] == [float(k) for k in range(12)]
+    assert mapper.finish() == []
+    assert np.allclose(mapper.filter.odometry, creep)  # left alone
+
+
+def test_missing_odometry_mid_stop_ends_the_stop_and_nothing_is_miscorrected() -> None:
+    turn, drive = np.array([0.0, 0.0, 0.05]), np.array([1.5, 0.0, 0.0])
+    mapper = _mapper()
+    _run(mapper, [drive] + [turn] * 3 + [None] + [turn] * 3 + [drive])
+    mapper.finish()
+    got = mapper.filter.odometry  # acquisitions 1 .. 8
+    assert got[3] is None
+    # each part's steps carry the whole of the closer's end correction (0.03 rad): none of
+    # it is lost on the acquisition without odometry
+    assert np.isclose(sum(g[2] for g in got[0:3]) - 3 * 0.05, 0.03)
+    assert np.isclose(sum(g[2] for g in got[4:7]) - 3 * 0.05, 0.03)
+    assert np.allclose(got[7], drive)
+
+
+class _HoldingFilter(_OdometryLog):
+    """Duck-typed RbpfSlam that, after a drive of over 1 m, holds ``hold_n`` acquisitions
+    (a relocalisation) and then releases them revised."""
+
+    def __init__(self, config: object, hold_n: int) -> None:
+        super().__init__(config)
+        self.hold_n = hold_n
+        self.pose = np.zeros(3)
+        self._held: list | None = None
+
+    @property  # type: ignore[override]
+    def holding(self) -> bool:
+        return self._held is not None
+
+    @holding.setter
+    def holding(self, value: bool) -> None:
+        pass
+
+    def predict(self, dt: float, odometry: object = None) -> None:
+        super().predict(dt, odometry)
+        if odometry is not None:
+            o = np.asarray(odometry, float)
+            c, s = np.cos(self.pose[2]), np.sin(self.pose[2])
+            self.pose = self.pose + np.array([c * o[0] - s * o[1], s * o[0] + c * o[1], o[2]])
+            if self._held is None and np.hypot(o[0], o[1]) > 1.0:
+                self._held = []
+
+    def update(self, z: object, groups: object = None) -> None:
+        if self._held is not None:
+            self._held.append(self.pose.copy())
+            if len(self._held) >= self.hold_n:
+                self._release()
+
+    def _release(self) -> None:
+        assert self._held is not None
+        self.revised += [PoseEstimate2D(pose=p + 0.001, cov=np.eye(3)) for p in self._held]
+        self._held = None
+
+    def flush(self) -> None:
+        if self._held is not None:
+            self._release()
+
+    def estimate(self) -> PoseEstimate2D:
+        return PoseEstimate2D(pose=self.pose.copy(), cov=np.eye(3))
+
+
+@pytest.mark.parametrize("provisional", [True, False])
+@pytest.mark.parametrize(("hold_n", "turn_max"), [(3, 240), (20, 240), (20, 4)])
+def test_a_filter_holding_across_stops_gets_each_acquisition_out_once(
+    provisional: bool, hold_n: int, turn_max: int
+) -> None:
+    turn, drive = np.array([0.0, 0.0, 0.05]), np.array([1.5, 0.0, 0.0])
+    odo = [drive] + [turn] * 4 + [drive] + [turn] * 5 + [drive] + [turn] * 2
+    mapper = _mapper(provisional_poses=provisional, turn_closure_max=turn_max)
+    mapper.filter = _HoldingFilter(mapper.filter.config, hold_n)  # type: ignore[assignment]
+    out = [g for got in _run(mapper, odo) for g in got] + mapper.finish()
+    final = [g.t for g in out if not g.provisional]
+    assert final == [float(k) for k in range(len(odo))]  # once each, in order
+    prov = [g.t for g in out if g.provisional]
+    assert len(prov) == len(set(prov)) and (provisional or not prov)
+    for t in prov:  # a provisional pose precedes its final one
+        ts = [(g.t, g.provisional) for g in out]
+        assert ts.index((t, True)) < ts.index((t, False))
+    assert mapper._stop == [] and mapper._pending == []

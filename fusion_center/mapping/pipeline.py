@@ -217,7 +217,7 @@ class EchoSlamMapper:
         self._stop_provisional = 0
         # path length of the held stop after its first acquisition, m
         self._stop_path = 0.0
-        #: stops whose odometry the turn closure corrected, and the corrections at their ends
+        #: the end correction (rad) of every stop the turn closure corrected
         self.turn_corrections: list[float] = []
 
     def step(

@@ -199,9 +199,21 @@ def loeo_table(
     return out
 
 
+def seed_arg(value: str) -> int:
+    """argparse type of a seed: an integer >= 0 (numpy's generators refuse negative ones),
+    so that a bad one is a one-line usage error instead of a traceback."""
+    try:
+        seed = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {seed}")
+    return seed
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--seed", type=seed_arg, default=11)
     p.add_argument("--n-train", type=int, default=100, help="channels per class and radar")
     p.add_argument("--n-test", type=int, default=200, help="held-out channels per class")
     p.add_argument("--test-snr", type=float, nargs=2, default=(10.0, 30.0), metavar=("LO", "HI"))

@@ -95,6 +95,13 @@ class ChannelClass:
     rise_time: float = 1.0
     k_factor_db: tuple[float, float] | None = None
 
+    def __post_init__(self) -> None:
+        # a negative std would otherwise fail deep inside a draw (numpy's "scale < 0")
+        if self.k_factor_db is not None and not self.k_factor_db[1] >= 0.0:
+            raise ValueError(
+                f"k_factor_db standard deviation must be >= 0 dB, got {self.k_factor_db[1]}"
+            )
+
 
 # 802.15.4a residential and office figures (rates, decays, cluster counts), rounded; the
 # direct-path and multipath levels are physical ranges, not fitted to any data set.
@@ -273,7 +280,8 @@ def draw_channel(
     amps = np.concatenate([[direct], amp.ravel()])
     keep = delays <= max_delay
     delays, amps = delays[keep], amps[keep]
-    if env.k_factor_db is not None and amps.size > 1:
+    # keep[0]: the K is defined against the direct path, which max_delay must not drop
+    if env.k_factor_db is not None and keep[0] and amps.size > 1:
         # drawn last, so that the channel's other draws are those without a K-factor
         k = 10 ** (rng.normal(*env.k_factor_db) / 10.0)
         mp = float(np.sum(np.abs(amps[1:]) ** 2))

@@ -44,6 +44,7 @@ from sim_nodes.channel.stochastic import (
     RESIDENTIAL_NLOS,
     ChannelClass,
 )
+from uwbnet.cli import _count
 from uwbnet.nlos_training import SELECTED, fit_logistic, make_dataset
 
 ENVIRONMENTS: dict[str, tuple[ChannelClass, ChannelClass]] = {
@@ -199,16 +200,9 @@ def loeo_table(
     return out
 
 
-def seed_arg(value: str) -> int:
-    """argparse type of a seed: an integer >= 0 (numpy's generators refuse negative ones),
-    so that a bad one is a one-line usage error instead of a traceback."""
-    try:
-        seed = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {value!r}") from None
-    if seed < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {seed}")
-    return seed
+#: argparse type of a seed: an integer >= 0 (numpy's generators refuse negative ones), so
+#: that a bad one is a one-line usage error instead of a traceback: the CLI's count type.
+seed_arg = _count
 
 
 def main(argv: list[str] | None = None) -> None:

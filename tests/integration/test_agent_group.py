@@ -264,13 +264,19 @@ def test_batched_group_serves_a_frames_slots_together_and_publishes_none_early()
         SlotOrderGroup([a], batch_window=-1.0)  # type: ignore[list-item]
 
 
-def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_slots():
-    t0 = time.time() + 0.2
-    # three frames of two adjacent slots (3 ms apart), 60 ms apart (a margin for a loaded
-    # machine's scheduling); window 10 ms
-    a = _FakeAgent("a", [t0, t0 + 0.060, t0 + 0.120])
-    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.063, t0 + 0.123])
+def _two_adjacent_agents(frames: int, lead: float) -> tuple[_FakeAgent, _FakeAgent]:
+    """Fake agents a and b with ``frames`` frames of two adjacent slots (3 ms apart), 60 ms
+    apart (a margin for a loaded machine's scheduling), the first ``lead`` s from now; the
+    driver's record of batches cleared."""
+    t0 = time.time() + lead
+    a = _FakeAgent("a", [t0 + 0.060 * f for f in range(frames)])
+    b = _FakeAgent("b", [t0 + 0.003 + 0.060 * f for f in range(frames)])
     _FakeDriver.batches = []
+    return a, b
+
+
+def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_slots():
+    a, b = _two_adjacent_agents(3, 0.2)  # window 10 ms
     group = SlotOrderGroup([a, b], batch_window=0.01, batches_per_wake=2)  # type: ignore[list-item]
     group.start()
     try:
@@ -296,11 +302,7 @@ def test_two_batches_per_wake_serve_the_next_frame_ahead_and_publish_it_at_its_s
 
 
 def test_a_pipelined_group_publishes_a_frame_and_serves_the_next_in_one_wake_up():
-    t0 = time.time() + 0.2
-    # three frames of two adjacent slots (3 ms apart), 60 ms apart; frames served 70 ms ahead
-    a = _FakeAgent("a", [t0, t0 + 0.060, t0 + 0.120])
-    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.063, t0 + 0.123])
-    _FakeDriver.batches = []
+    a, b = _two_adjacent_agents(3, 0.2)  # frames served 70 ms ahead
     group = SlotOrderGroup([a, b], batch_window=0.01, pipeline=0.07)  # type: ignore[list-item]
     group.start()
     names = {t.name for t in threading.enumerate()}
@@ -341,10 +343,7 @@ class _SlowAgent(_FakeAgent):
 def test_a_pipelined_group_stopped_while_a_frame_served_ahead_waits_publishes_it_at_its_slots():
     """Stopping between a frame served ahead and its release: every message still leaves
     once, and none before its frame's slots (review of stop 22)."""
-    t0 = time.time() + 0.1
-    a = _FakeAgent("a", [t0, t0 + 0.060])
-    b = _FakeAgent("b", [t0 + 0.003, t0 + 0.063])
-    _FakeDriver.batches = []
+    a, b = _two_adjacent_agents(2, 0.1)
     group = SlotOrderGroup([a, b], batch_window=0.01, pipeline=0.07)  # type: ignore[list-item]
     group.start()
     try:

@@ -20,7 +20,13 @@ from .band_filter import BandMatchedFilter
 from .geometry import SPEED_OF_LIGHT, RadarParams
 from .multipath_toa import MultipathMlToaRefiner
 from .nlos import DEFAULT_CLASSIFIER, FEATURES, LogisticNlosClassifier, channel_features
-from .toa import AdaptiveThresholdToaEstimator, envelope, make_toa_estimator, noise_sigma
+from .toa import (
+    AdaptiveThresholdToaEstimator,
+    envelope,
+    make_toa_estimator,
+    measured,
+    noise_sigma,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -118,14 +124,20 @@ class FirstPathRanger:
         y = band.apply(h) if band is not None else h
         env = envelope(y)
         matched = band is not None
-        est = self._toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
+        # exact zeros (a padded window) are not noise samples: kept out of the noise estimate
+        valid = measured(h)
+        est = self._toa.estimate_envelope(
+            env, complex_input=is_complex, matched=matched, valid=valid
+        )
         toa = est.toa
         if self._refiner is not None:
-            toa = self._refine(h, est.index, is_complex) / self.radar.fs
+            toa = self._refine(h, est.index, is_complex, valid) / self.radar.fs
         shape_est = (
             est
             if self.method in ("adaptive", "ml")
-            else self._shape_toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
+            else self._shape_toa.estimate_envelope(
+                env, complex_input=is_complex, matched=matched, valid=valid
+            )
         )
         # the shape features need the envelope, not a real signal's rectified oscillation:
         # the analytic signal's magnitude, whose noise is Rayleigh with the same sigma
@@ -149,14 +161,21 @@ class FirstPathRanger:
             features=feats,
         )
 
-    def _refine(self, h: npt.NDArray, index: FloatArray, is_complex: bool) -> FloatArray:
+    def _refine(
+        self,
+        h: npt.NDArray,
+        index: FloatArray,
+        is_complex: bool,
+        valid: npt.NDArray[np.bool_] | None,
+    ) -> FloatArray:
         """The multipath fit on the unfiltered samples (white noise), with their own noise
         sigma and the adaptive threshold's detection level."""
         assert self._refiner is not None
         est = self._shape_toa
         env = envelope(h)
         guard = max(1, int(np.ceil(4.0 * self.radar.fs / self.radar.bandwidth)))
-        sigma = noise_sigma(env, np.argmax(env, axis=1) - guard, complex_input=is_complex)
+        stop = np.argmax(env, axis=1) - guard
+        sigma = noise_sigma(env, stop, complex_input=is_complex, valid=valid)
         n = min(est._back, h.shape[1])
         factor = est.threshold_factor(n, complex_input=is_complex)
         return self._refiner.refine(h, index, sigma, factor * sigma, est._floor)

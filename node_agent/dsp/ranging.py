@@ -119,6 +119,13 @@ class FirstPathRanger:
                 quality=empty,
                 features=np.empty((0, len(FEATURES))),
             )
+        # real rows of a complex-baseband radar (fc > 0) that are never negative are the
+        # magnitudes of its samples (a noise component is negative half the time): the
+        # envelope itself, with Rayleigh noise, detected as complex baseband. Treated as a
+        # real passband signal, their band (above fs / 2) aliased to a carrier-dependent
+        # frequency and the matched filter with it (accuracy 88 % on channel 2, 93 % on 5)
+        if h.dtype.kind != "c" and self.radar.fc > 0.0 and bool(np.all(h >= 0)):
+            h = h.astype(np.complex64)
         is_complex = h.dtype.kind == "c"
         band = self._filter(is_complex)
         y = band.apply(h) if band is not None else h

@@ -10,6 +10,8 @@ first path, so the LOS decision does not change with the ranging method.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +62,14 @@ class RangingResult:
     features: FloatArray
 
 
+def _real_passband(radar: RadarParams) -> bool:
+    """Whether the band could be a real signal sampled at ``fs`` without aliasing onto
+    itself: it lies within one Nyquist zone :math:`[k f_s / 2, (k + 1) f_s / 2]` (k = 0:
+    below fs / 2, as a real radar's band is; k > 0: band-pass undersampling)."""
+    half = 0.5 * radar.fs
+    return radar.f_high <= (math.floor(radar.f_low / half) + 1) * half
+
+
 class FirstPathRanger:
     """Range and classify every row of an impulse-response matrix.
 
@@ -92,6 +102,7 @@ class FirstPathRanger:
         self.classifier = classifier if classifier is not None else DEFAULT_CLASSIFIER
         self._min_gain = min_filter_gain_db
         self._filters: dict[bool, BandMatchedFilter | None] = {}
+        self._magnitudes: FirstPathRanger | None = None
 
     def _filter(self, is_complex: bool) -> BandMatchedFilter | None:
         if is_complex not in self._filters:
@@ -101,6 +112,20 @@ class FirstPathRanger:
                 band = band if band.gain_db >= self._min_gain else None
             self._filters[is_complex] = band
         return self._filters[is_complex]
+
+    def _envelope_ranger(self) -> FirstPathRanger:
+        """A ranger of the same settings for the magnitudes of a carrier-less radar: complex
+        baseband with the carrier at the band's centre (magnitudes carry no carrier phase,
+        so their matched filter is the band's baseband pulse)."""
+        if self._magnitudes is None:
+            centre = 0.5 * (self.radar.f_low + self.radar.f_high)
+            self._magnitudes = FirstPathRanger(
+                dataclasses.replace(self.radar, fc=centre),
+                self.method,
+                self.classifier,
+                self._min_gain,
+            )
+        return self._magnitudes
 
     def process(self, h: npt.NDArray) -> RangingResult:
         """Range and classify each row of ``h`` (float32 or complex64, shape (rows, n))."""
@@ -126,6 +151,11 @@ class FirstPathRanger:
         # frequency and the matched filter with it (accuracy 88 % on channel 2, 93 % on 5)
         if h.dtype.kind != "c" and self.radar.fc > 0.0 and bool(np.all(h >= 0)):
             h = h.astype(np.complex64)
+        # the same without a carrier, when the band cannot be a real signal sampled at fs:
+        # ranged as the envelope of the complex baseband around the band's centre
+        real = h.dtype.kind != "c" and self.radar.fc <= 0.0
+        if real and not _real_passband(self.radar) and bool(np.all(h >= 0)):
+            return self._envelope_ranger().process(h.astype(np.complex64))
         is_complex = h.dtype.kind == "c"
         band = self._filter(is_complex)
         y = band.apply(h) if band is not None else h

@@ -241,3 +241,25 @@ def test_corrupt_truncated_missing_and_empty_inputs(foyer: Path, tmp_path: Path)
     assert not out.exists() and not Path(str(out) + ".partial").exists()
     proc = uwbnet("ranging", str(foyer), "--out", str(out), "--method", "music")
     assert proc.returncode == 2 and "invalid choice" in proc.stderr
+
+
+def test_magnitude_rows_without_a_carrier_above_nyquist(tmp_path: Path) -> None:
+    """The same magnitudes from a node_info without ``fc``: the band (6.2-6.7 GHz at
+    998.4 MHz sampling) straddles 13 fs / 2, so it cannot be a real sampled passband, and
+    the rows are ranged as the envelope around the band's centre (were the aliased real
+    passband's matched filter before)."""
+    rng = np.random.default_rng(14)
+    irs = [dataclasses.replace(ir, h=np.abs(ir.h)) for ir in _complex_irs(rng, 20)]
+    info = _anchor_info()
+    info = dataclasses.replace(info, radar=dataclasses.replace(info.radar, fc=None))
+    rec = tmp_path / "abs_nofc.mcap"
+    _write(rec, [info, *irs])
+    out = tmp_path / "r.jsonl"
+    proc = uwbnet("ranging", str(rec), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    lines = [json.loads(x) for x in out.read_text().splitlines()]
+    assert len(lines) == 40
+    for rx, true_range, los in (("rx1", LOS_RANGE, True), ("rx2", NLOS_RANGE, False)):
+        got = [x for x in lines if x["rx"] == rx]
+        assert np.median([abs(x["range"] - true_range) for x in got]) < 0.1
+        assert np.mean([x["los"] == los for x in got]) >= 0.7

@@ -10,6 +10,8 @@ first path, so the LOS decision does not change with the ranging method.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +22,13 @@ from .band_filter import BandMatchedFilter
 from .geometry import SPEED_OF_LIGHT, RadarParams
 from .multipath_toa import MultipathMlToaRefiner
 from .nlos import DEFAULT_CLASSIFIER, FEATURES, LogisticNlosClassifier, channel_features
-from .toa import AdaptiveThresholdToaEstimator, envelope, make_toa_estimator, noise_sigma
+from .toa import (
+    AdaptiveThresholdToaEstimator,
+    envelope,
+    make_toa_estimator,
+    measured,
+    noise_sigma,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -52,6 +60,14 @@ class RangingResult:
     snr_db: FloatArray
     quality: FloatArray
     features: FloatArray
+
+
+def _real_passband(radar: RadarParams) -> bool:
+    """Whether the band could be a real signal sampled at ``fs`` without aliasing onto
+    itself: it lies within one Nyquist zone :math:`[k f_s / 2, (k + 1) f_s / 2]` (k = 0:
+    below fs / 2, as a real radar's band is; k > 0: band-pass undersampling)."""
+    half = 0.5 * radar.fs
+    return radar.f_high <= (math.floor(radar.f_low / half) + 1) * half
 
 
 class FirstPathRanger:
@@ -86,6 +102,7 @@ class FirstPathRanger:
         self.classifier = classifier if classifier is not None else DEFAULT_CLASSIFIER
         self._min_gain = min_filter_gain_db
         self._filters: dict[bool, BandMatchedFilter | None] = {}
+        self._magnitudes: FirstPathRanger | None = None
 
     def _filter(self, is_complex: bool) -> BandMatchedFilter | None:
         if is_complex not in self._filters:
@@ -95,6 +112,20 @@ class FirstPathRanger:
                 band = band if band.gain_db >= self._min_gain else None
             self._filters[is_complex] = band
         return self._filters[is_complex]
+
+    def _envelope_ranger(self) -> FirstPathRanger:
+        """A ranger of the same settings for the magnitudes of a carrier-less radar: complex
+        baseband with the carrier at the band's centre (magnitudes carry no carrier phase,
+        so their matched filter is the band's baseband pulse)."""
+        if self._magnitudes is None:
+            centre = 0.5 * (self.radar.f_low + self.radar.f_high)
+            self._magnitudes = FirstPathRanger(
+                dataclasses.replace(self.radar, fc=centre),
+                self.method,
+                self.classifier,
+                self._min_gain,
+            )
+        return self._magnitudes
 
     def process(self, h: npt.NDArray) -> RangingResult:
         """Range and classify each row of ``h`` (float32 or complex64, shape (rows, n))."""
@@ -113,19 +144,37 @@ class FirstPathRanger:
                 quality=empty,
                 features=np.empty((0, len(FEATURES))),
             )
+        # real rows of a complex-baseband radar (fc > 0) that are never negative are the
+        # magnitudes of its samples (a noise component is negative half the time): the
+        # envelope itself, with Rayleigh noise, detected as complex baseband. Treated as a
+        # real passband signal, their band (above fs / 2) aliased to a carrier-dependent
+        # frequency and the matched filter with it (accuracy 88 % on channel 2, 93 % on 5)
+        if h.dtype.kind != "c" and self.radar.fc > 0.0 and bool(np.all(h >= 0)):
+            h = h.astype(np.complex64)
+        # the same without a carrier, when the band cannot be a real signal sampled at fs:
+        # ranged as the envelope of the complex baseband around the band's centre
+        real = h.dtype.kind != "c" and self.radar.fc <= 0.0
+        if real and not _real_passband(self.radar) and bool(np.all(h >= 0)):
+            return self._envelope_ranger().process(h.astype(np.complex64))
         is_complex = h.dtype.kind == "c"
         band = self._filter(is_complex)
         y = band.apply(h) if band is not None else h
         env = envelope(y)
         matched = band is not None
-        est = self._toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
+        # exact zeros (a padded window) are not noise samples: kept out of the noise estimate
+        valid = measured(h)
+        est = self._toa.estimate_envelope(
+            env, complex_input=is_complex, matched=matched, valid=valid
+        )
         toa = est.toa
         if self._refiner is not None:
-            toa = self._refine(h, est.index, is_complex) / self.radar.fs
+            toa = self._refine(h, est.index, is_complex, valid) / self.radar.fs
         shape_est = (
             est
             if self.method in ("adaptive", "ml")
-            else self._shape_toa.estimate_envelope(env, complex_input=is_complex, matched=matched)
+            else self._shape_toa.estimate_envelope(
+                env, complex_input=is_complex, matched=matched, valid=valid
+            )
         )
         # the shape features need the envelope, not a real signal's rectified oscillation:
         # the analytic signal's magnitude, whose noise is Rayleigh with the same sigma
@@ -149,14 +198,21 @@ class FirstPathRanger:
             features=feats,
         )
 
-    def _refine(self, h: npt.NDArray, index: FloatArray, is_complex: bool) -> FloatArray:
+    def _refine(
+        self,
+        h: npt.NDArray,
+        index: FloatArray,
+        is_complex: bool,
+        valid: npt.NDArray[np.bool_] | None,
+    ) -> FloatArray:
         """The multipath fit on the unfiltered samples (white noise), with their own noise
         sigma and the adaptive threshold's detection level."""
         assert self._refiner is not None
         est = self._shape_toa
         env = envelope(h)
         guard = max(1, int(np.ceil(4.0 * self.radar.fs / self.radar.bandwidth)))
-        sigma = noise_sigma(env, np.argmax(env, axis=1) - guard, complex_input=is_complex)
+        stop = np.argmax(env, axis=1) - guard
+        sigma = noise_sigma(env, stop, complex_input=is_complex, valid=valid)
         n = min(est._back, h.shape[1])
         factor = est.threshold_factor(n, complex_input=is_complex)
         return self._refiner.refine(h, index, sigma, factor * sigma, est._floor)

@@ -96,7 +96,11 @@ def envelope(h: npt.NDArray) -> FloatArray:
 
 
 def noise_sigma(
-    env: FloatArray, stop: npt.NDArray[np.intp] | None = None, *, complex_input: bool = True
+    env: FloatArray,
+    stop: npt.NDArray[np.intp] | None = None,
+    *,
+    complex_input: bool = True,
+    valid: npt.NDArray[np.bool_] | None = None,
 ) -> FloatArray:
     """Robust per-row noise :math:`\\sigma` (per component) from the magnitudes themselves.
 
@@ -117,13 +121,25 @@ def noise_sigma(
         at least 32 samples.
     complex_input : bool
         Whether the magnitudes are of complex samples.
+    valid : ndarray, bool, shape (rows, n), optional
+        Samples that were measured; the others (exact zeros of a recording padded in front
+        of, or after, the receiver's window: thermal noise is never exactly 0) are left out
+        of both medians, which they would otherwise pull towards 0, and with them the
+        threshold, down to an early false first path. A row without valid samples gets the
+        floor.
 
     Returns
     -------
     ndarray, float64, shape (rows,)
     """
     p = env * env
-    whole = np.median(p, axis=1)
+    if valid is not None and not np.all(valid):
+        p = np.where(valid, p, np.nan)
+        with np.errstate(all="ignore"):
+            empty = ~np.any(valid, axis=1)
+            whole = np.nanmedian(np.where(empty[:, None], 0.0, p), axis=1)
+    else:
+        whole = np.median(p, axis=1)
     if stop is not None:
         cols = np.arange(env.shape[1])
         lead = np.where(cols[None, :] < np.asarray(stop)[:, None], p, np.nan)
@@ -297,15 +313,23 @@ class ToaEstimator(ABC):
 
     def estimate(self, h: npt.NDArray) -> ToaEstimate:
         """First path of each row of ``h`` (ndarray float32 or complex64, shape (rows, n))."""
-        return self.estimate_envelope(envelope(h), complex_input=np.iscomplexobj(h))
+        return self.estimate_envelope(
+            envelope(h), complex_input=np.iscomplexobj(h), valid=measured(h)
+        )
 
     def estimate_envelope(
-        self, env: FloatArray, *, complex_input: bool, matched: bool = False
+        self,
+        env: FloatArray,
+        *,
+        complex_input: bool,
+        matched: bool = False,
+        valid: npt.NDArray[np.bool_] | None = None,
     ) -> ToaEstimate:
         """First path of each row of magnitudes ``env`` (float64, shape (rows, n)) of real
         or complex samples; ``matched``: the samples went through the band's matched filter
         (:class:`~node_agent.dsp.band_filter.BandMatchedFilter`), which widens the pulse's
-        envelope by :math:`\\sqrt 2`."""
+        envelope by :math:`\\sqrt 2`; ``valid``: the samples that were measured (see
+        :func:`noise_sigma` and :func:`measured`)."""
         self._complex = bool(complex_input)
         # the model pulse's envelope sigma in samples, for the known-pulse peak refinement
         width = pulse_sigma(self.radar, complex_input=complex_input) * self.radar.fs
@@ -315,7 +339,7 @@ class ToaEstimator(ABC):
         # silent rows (all zero) and samples far above the noise take logs of 0 and exps
         # of large numbers: the limits (-inf, 0, 1) are the right values
         with np.errstate(divide="ignore", over="ignore", under="ignore", invalid="ignore"):
-            sigma = _noise(env, self._guard(), complex_input)
+            sigma = _noise(env, self._guard(), complex_input, valid)
             return self._estimate(env, sigma)
 
     @abstractmethod
@@ -372,9 +396,22 @@ def _blank(est: ToaEstimate, missing: npt.NDArray[np.bool_]) -> ToaEstimate:
     )
 
 
-def _noise(env: FloatArray, guard: int, complex_input: bool) -> FloatArray:
+def _noise(
+    env: FloatArray,
+    guard: int,
+    complex_input: bool,
+    valid: npt.NDArray[np.bool_] | None = None,
+) -> FloatArray:
     """Noise sigma from the samples up to ``guard`` before the strongest path, or the row."""
-    return noise_sigma(env, np.argmax(env, axis=1) - guard, complex_input=complex_input)
+    stop = np.argmax(env, axis=1) - guard
+    return noise_sigma(env, stop, complex_input=complex_input, valid=valid)
+
+
+def measured(h: npt.NDArray) -> npt.NDArray[np.bool_] | None:
+    """Samples of ``h`` (rows, n) that are not exactly 0, or None when all are: a recording
+    may pad a shorter receiver window with zeros, which are no noise samples."""
+    valid = np.atleast_2d(h) != 0
+    return None if np.all(valid) else valid
 
 
 class PeakToaEstimator(ToaEstimator):

@@ -408,9 +408,17 @@ def _noise(
 
 
 def measured(h: npt.NDArray) -> npt.NDArray[np.bool_] | None:
-    """Samples of ``h`` (rows, n) that are not exactly 0, or None when all are: a recording
-    may pad a shorter receiver window with zeros, which are no noise samples."""
-    valid = np.atleast_2d(h) != 0
+    """Samples of ``h`` (rows, n) from each row's first to its last non-zero sample, or None
+    when that is every sample: a recording may pad a shorter receiver window with zeros in
+    front of or after it, which are no noise samples. Zeros inside the window are kept:
+    integer-quantised noise is exactly 0 in 20-35 % of its samples at 0.5-2 LSB, and leaving
+    those out would raise the noise median and the threshold. An all-zero row is all False."""
+    nz = np.atleast_2d(h) != 0
+    n = nz.shape[1]
+    first = np.argmax(nz, axis=1)
+    last = n - 1 - np.argmax(nz[:, ::-1], axis=1)
+    cols = np.arange(n)
+    valid = (cols >= first[:, None]) & (cols <= last[:, None]) & nz.any(axis=1)[:, None]
     return None if np.all(valid) else valid
 
 

@@ -13,6 +13,7 @@ from node_agent.dsp.toa import (
     ThresholdToaEstimator,
     envelope,
     make_toa_estimator,
+    measured,
     noise_sigma,
 )
 
@@ -170,3 +171,36 @@ def test_zero_padding_is_not_taken_for_noise(method: str, rng: np.random.Generat
     # (unpadded, MPD's own threshold lets 3 of these 64 rows start on noise; without the
     # exclusion 38 of 64 start early with MPD and the adaptive threshold)
     assert np.mean(np.abs(err) < 0.5) >= 0.9
+
+
+@pytest.mark.parametrize(("radar_name", "lsb"), [("dw1000_c8", 0.7), ("msequence_f4", 2.0)])
+def test_quantised_noise_zeros_inside_the_window_are_noise_samples(
+    radar_name: str, lsb: float, rng: np.random.Generator
+) -> None:
+    """An accumulator-like readout rounds to integers: at a noise std of 0.7 LSB (complex) or
+    2 LSB (real) a fifth to a third of the samples are exactly 0. They are noise samples, not
+    padding: only the zero runs before the first and after the last non-zero sample are."""
+    radar, is_complex = RADARS[radar_name]
+    h = synth_cir(radar, [_first(radar)], [1.0], 30.0, rng, rows=16)
+    scale = lsb / 10 ** (-30 / 20)
+    h = np.round(h.real * scale) + (1j * np.round(h.imag * scale) if is_complex else 0)
+    h = h.astype(np.complex64 if is_complex else np.float32)
+    assert np.mean(h == 0) > 0.1  # the premise: many exact zeros inside the window
+    env = envelope(h)
+    np.testing.assert_array_equal(
+        noise_sigma(env, complex_input=is_complex, valid=measured(h)),
+        noise_sigma(env, complex_input=is_complex),
+    )
+    padded = h.copy()
+    padded[:, :100] = 0
+    padded[:, -50:] = 0
+    nz = padded != 0
+    first = np.argmax(nz, axis=1)
+    last = h.shape[1] - 1 - np.argmax(nz[:, ::-1], axis=1)
+    cols = np.arange(h.shape[1])
+    # the padding is left out; everything from the first to the last non-zero sample is kept
+    np.testing.assert_array_equal(
+        measured(padded), (cols >= first[:, None]) & (cols <= last[:, None])
+    )
+    assert np.all(first >= 100) and np.all(last < h.shape[1] - 50)
+    assert not np.any(measured(np.zeros((2, 8))))  # an all-zero row has no measured sample

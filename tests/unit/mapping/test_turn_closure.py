@@ -58,6 +58,36 @@ def test_the_turn_closure_recovers_the_heading_error_at_the_end_of_a_turn() -> N
     assert np.mean(after) < 0.3 * np.mean(before)
 
 
+def test_the_closure_reports_each_steps_uncertainty() -> None:
+    _, dyaw, pairs, ids = _turn(357.0, seed=2)
+    closer = EchoBearingTurnCloser(ANTENNAS[1:])
+    res = closer.close(dyaw, pairs, ids)
+    assert res.step_sigma.shape == dyaw.shape and res.step_sigma[0] == 0.0
+    slip = closer.config.slip_rotation * np.abs(dyaw[1:]) + closer.config.slip_floor
+    # a random walk with the steps' noise ends with the closure's uncertainty, well below
+    # the slip model's over the turn
+    assert np.isclose(np.sqrt(np.sum(res.step_sigma**2)), res.end_sigma)
+    assert np.sqrt(np.sum(res.step_sigma**2)) < 0.5 * np.sqrt(np.sum(slip**2))
+
+
+def test_a_wrong_bend_in_the_middle_of_a_turn_is_refused() -> None:
+    # the odometry overstates the first half of the turn by 12 degrees and understates the
+    # second half by as much: its end is right, its middle 12 degrees off (beyond the
+    # 8-degree max_correction), which a check of the end alone accepts
+    _, dyaw, pairs, ids = _turn(357.0, seed=2)
+    half = dyaw.size // 2
+    bend = np.radians(12.0) / (half - 1)
+    dyaw = dyaw.copy()
+    dyaw[1:half] += bend
+    dyaw[half : 2 * half - 1] -= bend
+    wide = EchoBearingTurnCloser(ANTENNAS[1:], TurnClosureConfig(max_correction=np.radians(20.0)))
+    bent = wide.close(dyaw, pairs, ids)
+    assert np.degrees(np.max(np.abs(bent.correction))) > 9.0  # the echoes see the bend
+    assert np.degrees(abs(bent.correction[-1])) < 8.0  # and the end is within the bound
+    res = EchoBearingTurnCloser(ANTENNAS[1:]).close(dyaw, pairs, ids)
+    assert not np.isfinite(res.end_sigma) and np.all(res.correction == 0.0)
+
+
 def test_a_half_turn_does_not_close_and_is_left_alone() -> None:
     _, dyaw, pairs, ids = _turn(180.0, seed=3)
     res = EchoBearingTurnCloser(ANTENNAS[1:]).close(dyaw, pairs, ids)
@@ -112,12 +142,14 @@ class _OdometryLog:
     def __init__(self, config: object) -> None:
         self.config = config
         self.odometry: list = []
+        self.rotation_sigma: list = []
         self.revised: list = []
         self.holding = False
         self._rx_body = ANTENNAS[1:]
 
-    def predict(self, dt: float, odometry: object = None) -> None:
+    def predict(self, dt: float, odometry: object = None, rotation_sigma: object = None) -> None:
         self.odometry.append(None if odometry is None else np.array(odometry))
+        self.rotation_sigma.append(rotation_sigma)
 
     def update(self, z: object, groups: object = None) -> None:
         pass
@@ -136,7 +168,8 @@ class _OdometryLog:
 
 class _FixedCloser:
     def close(self, dyaw, pairs, groups) -> TurnClosure:
-        return TurnClosure(np.linspace(0.0, 0.03, len(dyaw)), 0.001, 2)
+        n = len(dyaw)
+        return TurnClosure(np.linspace(0.0, 0.03, n), 0.001, 2, np.r_[0.0, np.full(n - 1, 2e-4)])
 
 
 def test_the_mapper_holds_a_stop_until_the_drive_and_corrects_its_odometry() -> None:
@@ -167,6 +200,60 @@ def test_the_mapper_holds_a_stop_until_the_drive_and_corrects_its_odometry() -> 
     assert np.allclose([g[2] for g in got[:4]], 0.05 + 0.03 / 4)
     assert np.allclose(got[4], drive)
     assert np.allclose([g[2] for g in got[5:]], 0.05 + 0.03 / 3)
+    # the corrected steps turn with the closure's own uncertainty, the drive with the
+    # slip model's (None)
+    assert mapper.filter.rotation_sigma == [2e-4] * 4 + [None] + [2e-4] * 3
+
+
+def test_with_turn_closure_noise_off_the_filter_keeps_its_slip_model() -> None:
+    turn, drive = np.array([0.0, 0.0, 0.05]), np.array([1.5, 0.0, 0.0])
+    mapper = _mapper(turn_closure_noise=False)
+    _run(mapper, [drive] + [turn] * 4 + [drive] + [turn] * 3)
+    mapper.finish()
+    assert np.allclose([g[2] for g in mapper.filter.odometry[:4]], 0.05 + 0.03 / 4)
+    assert mapper.filter.rotation_sigma == [None] * 8
+
+
+def test_a_turn_with_the_odometrys_translation_noise_is_still_on_the_spot() -> None:
+    # the recorder reports about 2 mm of translation noise per turning step: summed as a
+    # path it reached 0.3 m over a 120-step turn and no room_pillar stop was corrected; the
+    # net displacement stays within the bound plus the noise's own spread
+    rng = np.random.default_rng(4)
+    drive = np.array([1.5, 0.0, 0.0])
+    turn = [np.r_[rng.normal(0.0, 0.002, 2), 0.05] for _ in range(120)]
+    mapper = _mapper()
+    _run(mapper, [drive, *turn, drive])
+    mapper.finish()
+    got = mapper.filter.odometry[:120]  # the first stop's acquisitions 1 .. 120
+    assert np.isclose(sum(g[2] for g in got) - 0.05 * 120, 0.03)  # corrected as one stop
+    assert list(mapper.turn_corrections) == [0.03]
+
+
+def test_the_held_stops_provisional_poses_are_composed_once() -> None:
+    # each acquisition's provisional pose continues from the last one: the stop is not
+    # recomposed from its start at every acquisition (quadratic in the stop's length), so
+    # an acquisition already published is not read again
+    turn, drive = np.array([0.0, 0.0, 0.05]), np.array([1.5, 0.0, 0.0])
+    mapper = _mapper(provisional_poses=True)
+    out = [g for got in _run(mapper, [drive] + [turn] * 3) for g in got]
+    t, _, *rest = mapper._stop[1]
+    mapper._stop[1] = (t, np.full(3, np.nan), *rest)
+    h = np.random.default_rng(1).normal(0.0, 1e-3, (2, 512)).astype(np.float32)
+    out += mapper.step(4.0, h, turn)
+    assert [g.t for g in out] == [0.0, 1.0, 2.0, 3.0, 4.0] and all(g.provisional for g in out)
+    # the drive and 4 turning steps from the filter's estimate (the duck type's: zero)
+    assert np.allclose(out[-1].estimate.pose, [1.5, 0.0, 0.2])
+
+
+def test_the_kept_turn_corrections_are_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
+    import fusion_center.mapping.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "TURN_CORRECTIONS_KEPT", 3)
+    turn, drive = np.array([0.0, 0.0, 0.05]), np.array([1.5, 0.0, 0.0])
+    mapper = _mapper()
+    _run(mapper, ([drive] + [turn] * 3) * 5)
+    mapper.finish()
+    assert list(mapper.turn_corrections) == [0.03] * 3  # the last 3 of 5 corrected stops
 
 
 def _mapper(**config: object) -> EchoSlamMapper:
@@ -244,7 +331,7 @@ class _HoldingFilter(_OdometryLog):
     def holding(self, value: bool) -> None:
         pass
 
-    def predict(self, dt: float, odometry: object = None) -> None:
+    def predict(self, dt: float, odometry: object = None, rotation_sigma: object = None) -> None:
         super().predict(dt, odometry)
         if odometry is not None:
             o = np.asarray(odometry, float)

@@ -19,6 +19,7 @@ from fusion_center.mapping.features import SlamMap, build_map
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import CORNER, POINT, WALL
 from fusion_center.mapping.rbpf import PoseEstimate2D, RbpfSlam, SlamConfig
+from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.smoothing import (
     LeastSquaresPathMapSmoother,
     SmootherConfig,
@@ -96,8 +97,8 @@ class MapperConfig:
         each stop's acquisitions until the robot drives on, estimate the turn's heading
         errors from the stop's own echoes (:mod:`fusion_center.mapping.turn_closure`: the
         reflectors seen at the start of a turn come back into view at its end; a stop is
-        corrected only when at least ``TurnClosureConfig.min_links`` = 2 reflectors are seen
-        in both its first and its last third) and give the filter the corrected odometry.
+        corrected only when at least ``turn_closure_min_links`` reflectors are seen in both
+        its first and its last third) and give the filter the corrected odometry.
         The outputs of a stop then come out when it ends (with ``provisional_poses``, at
         once as the odometry's prediction too). An acquisition without odometry is not
         held: it ends the held stop and passes straight on (the turn after it is a new
@@ -110,16 +111,20 @@ class MapperConfig:
     turn_closure_translation : float
         Net displacement, m (>= 0), of a held stop by its odometry (from its first
         acquisition, composed through the turn) beyond which it is not a turn on the spot,
-        on top of the odometry's own noise (3.5 ``SlamConfig.slip_floor[0]`` sqrt(steps)):
-        the stop is then passed on at once, its odometry left alone, and a new one begins.
-        (It was the path length: the odometry's 2 mm of noise per step summed to 0.3 m
-        over a room_pillar turn, and no stop was ever corrected.)
+        on top of the odometry's own noise (3.5 ``SlamConfig.slip_floor[0]`` sqrt(steps),
+        at most ``turn_closure_translation`` again, so that a wider slip model does not
+        pass a slow creep as a turn): the stop is then passed on at once, its odometry left
+        alone, and a new one begins.
     turn_closure_noise : bool
         With ``turn_closure``: the filter turns the particles through a corrected stop with
         the closure's own uncertainty of each step (``TurnClosure.step_sigma``) in place of
         the slip model's rotation noise, so that the particles keep the corrected heading
-        (off: the slip model's, which lets the filter drift about 1.8 degrees per turn on
-        the corrected odometry; docs/mapping.md).
+        (off: the slip model's, which lets the filter drift 1.8-2.4 degrees per turn on the
+        corrected odometry). Off by default: better on one room_pillar recording, worse on
+        the other (docs/mapping.md).
+    turn_closure_min_links : int
+        With ``turn_closure``: reflectors (>= 1) that must be seen in both the first and the
+        last third of a stop for it to be corrected (``TurnClosureConfig.min_links``).
     """
 
     min_range: float = 1.2
@@ -138,7 +143,8 @@ class MapperConfig:
     turn_closure: bool = False
     turn_closure_max: int = 240
     turn_closure_translation: float = 0.05
-    turn_closure_noise: bool = True
+    turn_closure_noise: bool = False
+    turn_closure_min_links: int = 2
 
     def __post_init__(self) -> None:
         m = self.turn_closure_max
@@ -147,6 +153,14 @@ class MapperConfig:
         d = self.turn_closure_translation
         if not (np.isfinite(d) and d >= 0.0):
             raise ValueError(f"MapperConfig.turn_closure_translation must be >= 0, got {d!r}")
+        b = self.turn_closure_noise
+        if not isinstance(b, bool | np.bool_):
+            raise ValueError(f"MapperConfig.turn_closure_noise must be a bool, got {b!r}")
+        k = self.turn_closure_min_links
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
+            raise ValueError(
+                f"MapperConfig.turn_closure_min_links must be an integer >= 1, got {k!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -219,7 +233,11 @@ class EchoSlamMapper:
         fc = self.filter.config
         self.turn_closer = EchoBearingTurnCloser(
             self.filter._rx_body,
-            TurnClosureConfig(slip_rotation=fc.slip_rotation, slip_floor=fc.slip_floor[1]),
+            TurnClosureConfig(
+                slip_rotation=fc.slip_rotation,
+                slip_floor=fc.slip_floor[1],
+                min_links=int(cfg.turn_closure_min_links),
+            ),
         )
         # acquisitions of the current stop held for its turn closure: t, odometry, all pairs
         # and their ids, the pairs for the filter and their ids, the echo groups still live
@@ -321,10 +339,7 @@ class EchoSlamMapper:
         if self._stop and (drive or len(self._stop) >= self.config.turn_closure_max):
             out += self._close_turn()
         if self._stop:
-            c, s = np.cos(self._stop_shift[2]), np.sin(self._stop_shift[2])
-            self._stop_shift = self._stop_shift + np.array(
-                [c * odo[0] - s * odo[1], s * odo[0] + c * odo[1], odo[2]]
-            )
+            self._stop_shift = compose_poses(self._stop_shift[None], np.asarray(odo, float))[0]
         self._stop.append((t, odo, z_all, ids_all, z, ids, live))
         if not self._on_the_spot():
             # not a turn on the spot: it can no longer qualify, so stop holding it
@@ -336,11 +351,14 @@ class EchoSlamMapper:
     def _on_the_spot(self, n: int | None = None) -> bool:
         """Whether the held stop (``n`` acquisitions, default all) is still a turn on the
         spot: its net odometry displacement within ``turn_closure_translation`` plus 3.5
-        standard deviations of the odometry's per-step noise summed over its steps."""
+        standard deviations of the odometry's per-step noise summed over its steps (the
+        noise term at most ``turn_closure_translation``: it comes from the filter's slip
+        model, a tuning knob, and must not widen the bound to a slow drive)."""
         steps = max((len(self._stop) if n is None else n) - 1, 0)
-        noise = 3.5 * self.filter.config.slip_floor[0] * np.sqrt(steps)
+        bound = self.config.turn_closure_translation
+        noise = min(3.5 * self.filter.config.slip_floor[0] * np.sqrt(steps), bound)
         shift = float(np.hypot(self._stop_shift[0], self._stop_shift[1]))
-        return shift <= self.config.turn_closure_translation + noise
+        return shift <= bound + noise
 
     def _close_turn(self) -> list[MapperOutput]:
         """Correct the held stop's odometry by its turn closure and pass it to the filter."""
@@ -386,8 +404,7 @@ class EchoSlamMapper:
         out = []
         for t, odo, z_all, *_rest in self._stop[self._stop_provisional :]:
             if odo is not None:
-                c, s = np.cos(pose[2]), np.sin(pose[2])
-                pose = pose + np.array([c * odo[0] - s * odo[1], s * odo[0] + c * odo[1], odo[2]])
+                pose = compose_poses(pose[None], np.asarray(odo, float))[0]
             e = PoseEstimate2D(pose=pose.copy(), cov=est.cov)
             out.append(MapperOutput(t=t, estimate=e, pairs=len(z_all), provisional=True))
         self._stop_pose = pose

@@ -380,6 +380,10 @@ class RbpfSlam:
             own uncertainty.
         """
         cfg = self.config
+        if rotation_sigma is not None and not rotation_sigma >= 0.0:
+            raise ValueError(
+                f"RbpfSlam.predict: rotation_sigma must be >= 0, got {rotation_sigma!r}"
+            )
         if (
             self._held is not None
             and odometry is not None

@@ -34,7 +34,7 @@ rotation-only bundle adjustment of one stop, solved before the filter sees the s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -126,19 +126,26 @@ class TurnClosureConfig:
 @dataclass(frozen=True, slots=True)
 class TurnClosure:
     """Result of one stop: ``correction`` (rad, shape (n,), ``e_k``; ``e_0`` = 0), its standard
-    deviation at the last acquisition (rad), the reflectors that close the loop, and
-    ``step_sigma`` (rad, shape (n,)): the noise per turning step of a random walk that
-    accumulates to ``end_sigma`` over the turn, ``end_sigma / sqrt(n - 1)`` (``step_sigma[0]``
-    = 0, the drive to the stop is not estimated; empty when the stop was not corrected).
-    Not each step's own posterior: the echoes fix the heading over the turn, not its single
-    steps, whose marginal deviations stay near the slip noise (room_pillar: 0.185 against
-    0.19 degrees) while their sum is known to 0.5-1.3 degrees instead of 2.0 (the steps'
-    errors are anti-correlated)."""
+    deviation at the last acquisition (rad, inf when the stop was not corrected) and the
+    reflectors that close the loop."""
 
     correction: FloatArray
     end_sigma: float
     links: int
-    step_sigma: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def step_sigma(self) -> FloatArray:
+        """The noise per turning step, rad, shape (n,): that of a random walk which
+        accumulates to ``end_sigma`` over the turn's n - 1 steps, ``end_sigma / sqrt(n - 1)``
+        (``step_sigma[0]`` = 0: the drive to the stop is not estimated; empty when the stop
+        was not corrected). Not each step's own posterior: the echoes fix the heading over
+        the turn, not its single steps, whose marginal deviations stay near the slip noise
+        (room_pillar: 0.185 against 0.19 degrees) while their sum is known far better (the
+        steps' errors are anti-correlated)."""
+        n = self.correction.size
+        if not np.isfinite(self.end_sigma) or n < 2:
+            return np.zeros(0)
+        return np.r_[0.0, np.full(n - 1, self.end_sigma / np.sqrt(n - 1))]
 
 
 class EchoBearingTurnCloser:
@@ -208,12 +215,12 @@ class EchoBearingTurnCloser:
         links = int(np.sum((n_early >= cfg.min_link_pairs) & (n_late >= cfg.min_link_pairs)))
         if links < cfg.min_links:
             return TurnClosure(np.zeros(n), np.inf, links)
-        e, end_sigma, step_sigma = self._solve(n, dyaw, k, world, sig_b, cluster, nc)
+        e, end_sigma = self._solve(n, dyaw, k, world, sig_b, cluster, nc)
         # the whole turn, not only its end: a wrong link can bend the middle of the turn
         # by degrees and still return near zero at its end
         if not np.all(np.isfinite(e)) or np.max(np.abs(e)) > cfg.max_correction:
             return TurnClosure(np.zeros(n), np.inf, links)
-        return TurnClosure(e, end_sigma, links, step_sigma)
+        return TurnClosure(e, end_sigma, links)
 
     def _reflectors(self, gid: npt.NDArray, rho: FloatArray, world: FloatArray) -> npt.NDArray:
         """Reflector index of every pair: echo tracks joined by image distance and bearing."""
@@ -251,10 +258,10 @@ class EchoBearingTurnCloser:
         sig_b: FloatArray,
         cluster: npt.NDArray,
         nc: int,
-    ) -> tuple[FloatArray, float, FloatArray]:
+    ) -> tuple[FloatArray, float]:
         """Weighted least squares over ``[e_1 .. e_{n-1}, psi_0 .. psi_{nc-1}]``: the
-        corrections, the end's standard deviation and each step's (see :class:`TurnClosure`),
-        from the inverse of the last round's normal matrix."""
+        corrections and the end's standard deviation, from the inverse of the last round's
+        normal matrix."""
         cfg = self.config
         # unwrap every pair's world bearing next to its reflector's mean
         cm = np.arctan2(
@@ -302,8 +309,7 @@ class EchoBearingTurnCloser:
             rw = (sig_b / sig) ** 2 / (1.0 + (res / (cfg.cauchy_scale * sig)) ** 2)
         cov_end = np.linalg.solve(a, np.eye(m)[:, n - 2])[n - 2]
         end_sigma = float(np.sqrt(max(cov_end, 0.0)))
-        step_sigma = np.r_[0.0, np.full(n - 1, end_sigma / np.sqrt(n - 1))]
-        return np.r_[0.0, x[: n - 1]], end_sigma, step_sigma
+        return np.r_[0.0, x[: n - 1]], end_sigma
 
 
 def _group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:

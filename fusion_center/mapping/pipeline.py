@@ -19,6 +19,7 @@ from fusion_center.mapping.features import SlamMap, build_map
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import CORNER, POINT, WALL
 from fusion_center.mapping.rbpf import PoseEstimate2D, RbpfSlam, SlamConfig
+from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.smoothing import (
     LeastSquaresPathMapSmoother,
     SmootherConfig,
@@ -27,6 +28,9 @@ from fusion_center.mapping.smoothing import (
 from fusion_center.mapping.turn_closure import EchoBearingTurnCloser, TurnClosureConfig
 
 FloatArray = npt.NDArray[np.float64]
+
+#: how many of the last stops' turn corrections :attr:`EchoSlamMapper.turn_corrections` keeps
+TURN_CORRECTIONS_KEPT = 1000
 
 
 def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
@@ -93,8 +97,8 @@ class MapperConfig:
         each stop's acquisitions until the robot drives on, estimate the turn's heading
         errors from the stop's own echoes (:mod:`fusion_center.mapping.turn_closure`: the
         reflectors seen at the start of a turn come back into view at its end; a stop is
-        corrected only when at least ``TurnClosureConfig.min_links`` = 2 reflectors are seen
-        in both its first and its last third) and give the filter the corrected odometry.
+        corrected only when at least ``turn_closure_min_links`` reflectors are seen in both
+        its first and its last third) and give the filter the corrected odometry.
         The outputs of a stop then come out when it ends (with ``provisional_poses``, at
         once as the odometry's prediction too). An acquisition without odometry is not
         held: it ends the held stop and passes straight on (the turn after it is a new
@@ -105,8 +109,22 @@ class MapperConfig:
         121), or the turn is cut in parts that each fall short of ``min_turn`` and are left
         uncorrected (a 357-degree turn in 1-degree steps needs more than the default 240).
     turn_closure_translation : float
-        Path length, m (>= 0), within a held stop beyond which it is not a turn on the spot:
-        the stop is then passed on at once, its odometry left alone, and a new one begins.
+        Net displacement, m (>= 0), of a held stop by its odometry (from its first
+        acquisition, composed through the turn) beyond which it is not a turn on the spot,
+        on top of the odometry's own noise (3.5 ``SlamConfig.slip_floor[0]`` sqrt(steps),
+        at most ``turn_closure_translation`` again, so that a wider slip model does not
+        pass a slow creep as a turn): the stop is then passed on at once, its odometry left
+        alone, and a new one begins.
+    turn_closure_noise : bool
+        With ``turn_closure``: the filter turns the particles through a corrected stop with
+        the closure's own uncertainty of each step (``TurnClosure.step_sigma``) in place of
+        the slip model's rotation noise, so that the particles keep the corrected heading
+        (off: the slip model's, which lets the filter drift 1.8-2.4 degrees per turn on the
+        corrected odometry). Off by default: better on one room_pillar recording, worse on
+        the other (docs/mapping.md).
+    turn_closure_min_links : int
+        With ``turn_closure``: reflectors (>= 1) that must be seen in both the first and the
+        last third of a stop for it to be corrected (``TurnClosureConfig.min_links``).
     """
 
     min_range: float = 1.2
@@ -125,6 +143,8 @@ class MapperConfig:
     turn_closure: bool = False
     turn_closure_max: int = 240
     turn_closure_translation: float = 0.05
+    turn_closure_noise: bool = False
+    turn_closure_min_links: int = 2
 
     def __post_init__(self) -> None:
         m = self.turn_closure_max
@@ -133,6 +153,14 @@ class MapperConfig:
         d = self.turn_closure_translation
         if not (np.isfinite(d) and d >= 0.0):
             raise ValueError(f"MapperConfig.turn_closure_translation must be >= 0, got {d!r}")
+        b = self.turn_closure_noise
+        if not isinstance(b, bool | np.bool_):
+            raise ValueError(f"MapperConfig.turn_closure_noise must be a bool, got {b!r}")
+        k = self.turn_closure_min_links
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
+            raise ValueError(
+                f"MapperConfig.turn_closure_min_links must be an integer >= 1, got {k!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -205,7 +233,11 @@ class EchoSlamMapper:
         fc = self.filter.config
         self.turn_closer = EchoBearingTurnCloser(
             self.filter._rx_body,
-            TurnClosureConfig(slip_rotation=fc.slip_rotation, slip_floor=fc.slip_floor[1]),
+            TurnClosureConfig(
+                slip_rotation=fc.slip_rotation,
+                slip_floor=fc.slip_floor[1],
+                min_links=int(cfg.turn_closure_min_links),
+            ),
         )
         # acquisitions of the current stop held for its turn closure: t, odometry, all pairs
         # and their ids, the pairs for the filter and their ids, the echo groups still live
@@ -215,10 +247,13 @@ class EchoSlamMapper:
             ]
         ] = []
         self._stop_provisional = 0
-        # path length of the held stop after its first acquisition, m
-        self._stop_path = 0.0
-        #: the end correction (rad) of every stop the turn closure corrected
-        self.turn_corrections: list[float] = []
+        # the last provisional pose of the held stop (the next ones continue from it)
+        self._stop_pose = np.zeros(3)
+        # odometry pose of the held stop's last acquisition in the frame of its first
+        self._stop_shift = np.zeros(3)
+        #: the end corrections (rad) of the last stops the turn closure corrected (bounded:
+        #: a robot that runs for days must not grow it)
+        self.turn_corrections: deque[float] = deque(maxlen=TURN_CORRECTIONS_KEPT)
 
     def step(
         self, t: float, h: npt.NDArray, odometry: npt.ArrayLike | None = None
@@ -278,6 +313,20 @@ class EchoSlamMapper:
         if self.measurement_space:
             live = {int(g) for q in self._queue for g in q[3]} | set(ids.tolist())
             self.grouper.hits = {g: n for g, n in self.grouper.hits.items() if g in live}
+        return self._route(t, odo, z_all, ids_all, z, ids, live)
+
+    def _route(
+        self,
+        t: float,
+        odo: FloatArray | None,
+        z_all: FloatArray,
+        ids_all: npt.NDArray,
+        z: FloatArray,
+        ids: npt.NDArray,
+        live: set[int],
+    ) -> list[MapperOutput]:
+        """One acquisition after the front end (all its pairs and ids; those for the filter;
+        the echo groups still live): to the filter, or held for its stop's turn closure."""
         if not self.config.turn_closure:
             return self._feed(t, odo, z, ids, live)
         if odo is None:
@@ -290,55 +339,75 @@ class EchoSlamMapper:
         if self._stop and (drive or len(self._stop) >= self.config.turn_closure_max):
             out += self._close_turn()
         if self._stop:
-            self._stop_path += shift
+            self._stop_shift = compose_poses(self._stop_shift[None], np.asarray(odo, float))[0]
         self._stop.append((t, odo, z_all, ids_all, z, ids, live))
-        if self._stop_path > self.config.turn_closure_translation:
+        if not self._on_the_spot():
             # not a turn on the spot: it can no longer qualify, so stop holding it
             return out + self._close_turn()
         if self.config.provisional_poses:
             out += self._stop_provisionals()
         return out
 
+    def _on_the_spot(self, n: int | None = None) -> bool:
+        """Whether the held stop (``n`` acquisitions, default all) is still a turn on the
+        spot: its net odometry displacement within ``turn_closure_translation`` plus 3.5
+        standard deviations of the odometry's per-step noise summed over its steps (the
+        noise term at most ``turn_closure_translation``: it comes from the filter's slip
+        model, a tuning knob, and must not widen the bound to a slow drive)."""
+        steps = max((len(self._stop) if n is None else n) - 1, 0)
+        bound = self.config.turn_closure_translation
+        noise = min(3.5 * self.filter.config.slip_floor[0] * np.sqrt(steps), bound)
+        shift = float(np.hypot(self._stop_shift[0], self._stop_shift[1]))
+        return shift <= bound + noise
+
     def _close_turn(self) -> list[MapperOutput]:
         """Correct the held stop's odometry by its turn closure and pass it to the filter."""
         stop, self._stop = self._stop, []
         self._stop_provisional = 0
-        path, self._stop_path = self._stop_path, 0.0
+        self._stop_pose = np.zeros(3)
+        on_the_spot = self._on_the_spot(len(stop))
+        self._stop_shift = np.zeros(3)
         if not stop:
             return []
         # every held acquisition has odometry (``_filter`` passes the others on unheld)
         odos = [np.asarray(s[1], float) for s in stop]
         step = np.zeros(len(stop))
-        if len(stop) > 2 and path <= self.config.turn_closure_translation:
+        sigma: list[float | None] = [None] * len(stop)
+        if len(stop) > 2 and on_the_spot:
             res = self.turn_closer.close(
                 np.array([o[2] for o in odos]), [s[2] for s in stop], [s[3] for s in stop]
             )
             if np.isfinite(res.end_sigma):
                 step = np.diff(res.correction, prepend=0.0)
                 self.turn_corrections.append(float(res.correction[-1]))
+                if self.config.turn_closure_noise:
+                    # the first acquisition carries the drive to the stop: the slip model's
+                    sigma = [None] + [float(v) for v in res.step_sigma[1:]]
         out: list[MapperOutput] = []
-        for (t, odo, _, _, z, ids, live), d in zip(stop, step, strict=True):
+        for (t, odo, _, _, z, ids, live), d, sg in zip(stop, step, sigma, strict=True):
             if d != 0.0:
                 odo = odo + np.array([0.0, 0.0, d])
             # their provisional poses went out while the stop was held
-            out += [o for o in self._feed(t, odo, z, ids, live) if not o.provisional]
+            out += [o for o in self._feed(t, odo, z, ids, live, sg) if not o.provisional]
         if self.filter.holding:
             self._provisional_sent = len(self._pending)
         return out
 
     def _stop_provisionals(self) -> list[MapperOutput]:
         """The held stop's acquisitions not yet output, as the odometry's prediction from
-        the filter's current estimate (marked ``provisional``)."""
+        the filter's estimate at the stop's start (marked ``provisional``). Each call
+        composes only the new acquisitions onto the last provisional pose: the filter gets
+        nothing while the stop is held, so its estimate does not change, and a recompute
+        from the stop's start made the hold quadratic in the stop's length."""
         est = self.filter.estimate()
-        pose = est.pose.copy()
+        pose = est.pose.copy() if self._stop_provisional == 0 else self._stop_pose
         out = []
-        for i, (t, odo, z_all, *_rest) in enumerate(self._stop):
+        for t, odo, z_all, *_rest in self._stop[self._stop_provisional :]:
             if odo is not None:
-                c, s = np.cos(pose[2]), np.sin(pose[2])
-                pose = pose + np.array([c * odo[0] - s * odo[1], s * odo[0] + c * odo[1], odo[2]])
-            if i >= self._stop_provisional:
-                e = PoseEstimate2D(pose=pose.copy(), cov=est.cov)
-                out.append(MapperOutput(t=t, estimate=e, pairs=len(z_all), provisional=True))
+                pose = compose_poses(pose[None], np.asarray(odo, float))[0]
+            e = PoseEstimate2D(pose=pose.copy(), cov=est.cov)
+            out.append(MapperOutput(t=t, estimate=e, pairs=len(z_all), provisional=True))
+        self._stop_pose = pose
         self._stop_provisional = len(self._stop)
         return out
 
@@ -349,11 +418,13 @@ class EchoSlamMapper:
         z: FloatArray,
         ids: npt.NDArray,
         live: set[int],
+        rotation_sigma: float | None = None,
     ) -> list[MapperOutput]:
-        """One acquisition through the filter."""
+        """One acquisition through the filter (``rotation_sigma``: see
+        :meth:`RbpfSlam.predict`)."""
         f = self.filter
         if self._last_t is not None:
-            f.predict(t - self._last_t, odo)
+            f.predict(t - self._last_t, odo, rotation_sigma=rotation_sigma)
         self._last_t = t
         f.update(z, ids)
         self.pairs_used += z.shape[0]

@@ -357,7 +357,12 @@ class RbpfSlam:
 
     # --- motion -------------------------------------------------------------------------------
 
-    def predict(self, dt: float, odometry: npt.ArrayLike | None = None) -> None:
+    def predict(
+        self,
+        dt: float,
+        odometry: npt.ArrayLike | None = None,
+        rotation_sigma: float | None = None,
+    ) -> None:
         """Move every particle (eq. (7)-(8) of the CoLOR chapter) with slip noise.
 
         Parameters
@@ -368,8 +373,17 @@ class RbpfSlam:
             ``(dx, dy, dyaw)`` since the previous acquisition in the previous robot frame
             (m, m, rad). Without it the robot keeps its estimated speed and heading with a
             heading random walk.
+        rotation_sigma : float, optional
+            Standard deviation of this step's rotation, rad, in place of the slip model's
+            (with odometry only): a step whose rotation was estimated elsewhere, e.g. by the
+            turn closure (:mod:`fusion_center.mapping.turn_closure`), with that estimate's
+            own uncertainty.
         """
         cfg = self.config
+        if rotation_sigma is not None and not rotation_sigma >= 0.0:
+            raise ValueError(
+                f"RbpfSlam.predict: rotation_sigma must be >= 0, got {rotation_sigma!r}"
+            )
         if (
             self._held is not None
             and odometry is not None
@@ -378,11 +392,11 @@ class RbpfSlam:
             self._relocalise()  # the robot drove on before the match had its pairs
         if self._held is not None:
             # the particles keep moving so that estimate() stays the odometry's prediction
-            self._held.append(("p", dt, odometry))
-            self._move(dt, odometry)
+            self._held.append(("p", dt, odometry, rotation_sigma))
+            self._move(dt, odometry, rotation_sigma)
             return
         before = self.pose.copy()
-        self._move(dt, odometry)
+        self._move(dt, odometry, rotation_sigma)
         if (
             odometry is not None
             and np.hypot(*np.asarray(odometry, float)[:2]) > cfg.relocalise_distance
@@ -400,7 +414,9 @@ class RbpfSlam:
             self._held_centre = compose_poses(before, np.asarray(odometry, float))[origin]
             self._held_origin = origin
 
-    def _move(self, dt: float, odometry: npt.ArrayLike | None) -> None:
+    def _move(
+        self, dt: float, odometry: npt.ArrayLike | None, rotation_sigma: float | None = None
+    ) -> None:
         """The motion model of :meth:`predict` (with the particle expansion)."""
         cfg = self.config
         p = self.pose.shape[0]
@@ -428,6 +444,8 @@ class RbpfSlam:
                 + cfg.slip_heading_per_metre * dist
                 + cfg.slip_floor[1]
             )
+            if rotation_sigma is not None:
+                s_rot = np.full(p, float(rotation_sigma))
             if dt > 0:
                 self.speed = dist / dt
         noisy = step + self.rng.normal(size=(p, 2)) * s_tr[:, None]
@@ -810,7 +828,7 @@ class RbpfSlam:
                 self.relocalisations += 1
         for c in calls:
             if c[0] == "p":
-                self._move(c[1], c[2])
+                self._move(c[1], c[2], c[3])
             elif c[0] == "u":
                 self.update(c[1], c[2])
                 self.revised.append(self.estimate())

@@ -73,8 +73,9 @@ class TurnClosureConfig:
     iterations : int
         Reweighting rounds.
     max_correction : float
-        Largest accepted correction at the end of the turn, rad (a larger one is a wrong
-        link: no correction).
+        Largest accepted correction at any acquisition of the turn, rad (a larger one, also
+        an excursion mid-turn that returns near zero at its end, is a wrong link: no
+        correction).
     cluster_noise : bool
         Scale each reflector's bearing noise by its robust residual scatter.
 
@@ -125,11 +126,26 @@ class TurnClosureConfig:
 @dataclass(frozen=True, slots=True)
 class TurnClosure:
     """Result of one stop: ``correction`` (rad, shape (n,), ``e_k``; ``e_0`` = 0), its standard
-    deviation at the last acquisition (rad) and the reflectors that close the loop."""
+    deviation at the last acquisition (rad, inf when the stop was not corrected) and the
+    reflectors that close the loop."""
 
     correction: FloatArray
     end_sigma: float
     links: int
+
+    @property
+    def step_sigma(self) -> FloatArray:
+        """The noise per turning step, rad, shape (n,): that of a random walk which
+        accumulates to ``end_sigma`` over the turn's n - 1 steps, ``end_sigma / sqrt(n - 1)``
+        (``step_sigma[0]`` = 0: the drive to the stop is not estimated; empty when the stop
+        was not corrected). Not each step's own posterior: the echoes fix the heading over
+        the turn, not its single steps, whose marginal deviations stay near the slip noise
+        (room_pillar: 0.185 against 0.19 degrees) while their sum is known far better (the
+        steps' errors are anti-correlated)."""
+        n = self.correction.size
+        if not np.isfinite(self.end_sigma) or n < 2:
+            return np.zeros(0)
+        return np.r_[0.0, np.full(n - 1, self.end_sigma / np.sqrt(n - 1))]
 
 
 class EchoBearingTurnCloser:
@@ -200,7 +216,9 @@ class EchoBearingTurnCloser:
         if links < cfg.min_links:
             return TurnClosure(np.zeros(n), np.inf, links)
         e, end_sigma = self._solve(n, dyaw, k, world, sig_b, cluster, nc)
-        if not np.isfinite(e[-1]) or abs(e[-1]) > cfg.max_correction:
+        # the whole turn, not only its end: a wrong link can bend the middle of the turn
+        # by degrees and still return near zero at its end
+        if not np.all(np.isfinite(e)) or np.max(np.abs(e)) > cfg.max_correction:
             return TurnClosure(np.zeros(n), np.inf, links)
         return TurnClosure(e, end_sigma, links)
 
@@ -241,7 +259,9 @@ class EchoBearingTurnCloser:
         cluster: npt.NDArray,
         nc: int,
     ) -> tuple[FloatArray, float]:
-        """Weighted least squares over ``[e_1 .. e_{n-1}, psi_0 .. psi_{nc-1}]``."""
+        """Weighted least squares over ``[e_1 .. e_{n-1}, psi_0 .. psi_{nc-1}]``: the
+        corrections and the end's standard deviation, from the inverse of the last round's
+        normal matrix."""
         cfg = self.config
         # unwrap every pair's world bearing next to its reflector's mean
         cm = np.arctan2(
@@ -288,7 +308,8 @@ class EchoBearingTurnCloser:
                 sig = sig_b
             rw = (sig_b / sig) ** 2 / (1.0 + (res / (cfg.cauchy_scale * sig)) ** 2)
         cov_end = np.linalg.solve(a, np.eye(m)[:, n - 2])[n - 2]
-        return np.r_[0.0, x[: n - 1]], float(np.sqrt(max(cov_end, 0.0)))
+        end_sigma = float(np.sqrt(max(cov_end, 0.0)))
+        return np.r_[0.0, x[: n - 1]], end_sigma
 
 
 def _group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:

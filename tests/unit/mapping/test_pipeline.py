@@ -24,7 +24,7 @@ class _HoldingFilter:
     def holding(self) -> bool:
         return (self.k - 1) in self.hold[:-1]  # after the update of a held acquisition
 
-    def predict(self, dt: float, odometry: object = None) -> None:
+    def predict(self, dt: float, odometry: object = None, rotation_sigma: object = None) -> None:
         pass
 
     def update(self, z: object, groups: object = None) -> None:

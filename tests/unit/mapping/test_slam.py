@@ -152,3 +152,44 @@ def test_likelihood_power_zero_ignores_the_echoes() -> None:
         slam.predict(1.0, (0.0, 0.0, 0.02))
         slam.update(np.array([[r, r + 0.1]]))
     assert np.ptp(slam.logw) < 1e-12 and slam.resamples == 0
+
+
+def test_a_given_rotation_sigma_replaces_the_slip_models_turn_noise() -> None:
+    # 2,000 particles through 100 turning steps of 3 degrees: the slip model spreads the
+    # heading by sqrt(100) (0.03 * 3 + 0.1) degrees = 1.9 degrees, a rotation sigma of
+    # 0.01 degree per step by 0.1 degree; the translation noise is the slip model's in both
+    step = np.array([0.0, 0.0, np.radians(3.0)])
+    spread = []
+    for sigma in (None, np.radians(0.01)):
+        slam = RbpfSlam(ANTENNAS, SlamConfig(n_particles=2000, seed=5))
+        for _ in range(100):
+            slam.predict(0.02, step, rotation_sigma=sigma)
+        assert np.allclose(np.mean(slam.pose[:, 2]), np.radians(300.0), atol=np.radians(0.2))
+        spread.append(np.degrees(np.std(slam.pose[:, 2])))
+        assert 0.015 < np.std(slam.pose[:, 0]) < 0.025  # 2 mm per step: 2 cm
+    assert 1.8 < spread[0] < 2.0
+    assert 0.09 < spread[1] < 0.11
+
+
+def test_a_given_rotation_sigma_is_kept_through_a_relocalisation_hold_and_replay() -> None:
+    # the same 100 turning steps held back for a relocalisation (as predict starts one) and
+    # replayed by flush(): without pairs there is nothing to match, so the replay moves the
+    # particles from the hold's start with each step's own rotation sigma again
+    step = np.array([0.0, 0.0, np.radians(3.0)])
+    slam = RbpfSlam(ANTENNAS, SlamConfig(n_particles=2000, seed=5))
+    slam._held, slam._held_pairs, slam._held_spread = [], 0, 0.0
+    slam._held_start = (slam.pose.copy(), slam.speed.copy())
+    for _ in range(100):
+        slam.predict(0.02, step, rotation_sigma=np.radians(0.01))
+    assert slam.holding
+    slam.flush()
+    assert not slam.holding
+    assert np.allclose(np.mean(slam.pose[:, 2]), np.radians(300.0), atol=np.radians(0.2))
+    assert 0.09 < np.degrees(np.std(slam.pose[:, 2])) < 0.11  # the slip model's: 1.9
+
+
+@pytest.mark.parametrize("sigma", [-0.01, float("nan")])
+def test_a_bad_rotation_sigma_is_refused(sigma: float) -> None:
+    slam = RbpfSlam(ANTENNAS, SlamConfig(n_particles=5, seed=5))
+    with pytest.raises(ValueError, match="rotation_sigma must be >= 0"):
+        slam.predict(0.02, (0.0, 0.0, 0.05), rotation_sigma=sigma)

@@ -7,6 +7,7 @@ import pytest
 
 from node_agent.dsp.toa import (
     ESTIMATORS,
+    MIN_PADDING,
     AdaptiveThresholdToaEstimator,
     MpdToaEstimator,
     PeakToaEstimator,
@@ -191,16 +192,20 @@ def test_quantised_noise_zeros_inside_the_window_are_noise_samples(
         noise_sigma(env, complex_input=is_complex, valid=measured(h)),
         noise_sigma(env, complex_input=is_complex),
     )
+    # each row padded differently; runs shorter than MIN_PADDING (a chance run of quantised
+    # noise) are kept as noise samples
+    lead = np.array([0, 3, 16, 100] * 4)
+    trail = np.array([50, 0, 15, 16] * 4)
     padded = h.copy()
-    padded[:, :100] = 0
-    padded[:, -50:] = 0
-    nz = padded != 0
-    first = np.argmax(nz, axis=1)
-    last = h.shape[1] - 1 - np.argmax(nz[:, ::-1], axis=1)
     cols = np.arange(h.shape[1])
-    # the padding is left out; everything from the first to the last non-zero sample is kept
+    padded[(cols[None, :] < lead[:, None]) | (cols[None, :] >= h.shape[1] - trail[:, None])] = 0
+    rows = np.arange(h.shape[0])
+    padded[rows, lead] = padded[rows, h.shape[1] - trail - 1] = 1  # the window's edges: not 0
+    assert MIN_PADDING == 16  # the runs of 3 and 15 zeros below are noise, 16 and more padding
+    start = np.where(lead >= 16, lead, 0)
+    stop = np.where(trail >= 16, h.shape[1] - trail, h.shape[1])
     np.testing.assert_array_equal(
-        measured(padded), (cols >= first[:, None]) & (cols <= last[:, None])
+        measured(padded), (cols >= start[:, None]) & (cols < stop[:, None])
     )
-    assert np.all(first >= 100) and np.all(last < h.shape[1] - 50)
     assert not np.any(measured(np.zeros((2, 8))))  # an all-zero row has no measured sample
+    assert measured(np.zeros((2, 0))) is None

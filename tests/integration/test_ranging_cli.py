@@ -175,14 +175,20 @@ def test_zero_padded_windows_range_and_classify_as_unpadded(tmp_path: Path) -> N
         assert np.mean([x["los"] == los for x in got]) >= 0.9
 
 
-def test_magnitude_rows_of_a_complex_baseband_radar(tmp_path: Path) -> None:
-    """Rows exported as magnitudes (``<f4``, never negative) by a radar with a carrier
-    (``fc``): they are the envelope. Taken for a real passband signal, their band (above
-    fs / 2) aliased, and the matched filter smeared the envelope: LOS rows called NLOS."""
+@pytest.mark.parametrize("with_fc", [True, False], ids=["fc", "no-fc"])
+def test_magnitude_rows_are_ranged_as_the_envelope(with_fc: bool, tmp_path: Path) -> None:
+    """Rows exported as magnitudes (``<f4``, never negative) of a complex-baseband radar: they
+    are the envelope. With ``fc`` in node_info, or without it when the band (6.2-6.7 GHz at
+    998.4 MHz sampling) straddles 13 fs / 2 and so cannot be a real sampled passband, they are
+    ranged around the band's centre. Taken for a real passband signal, their band aliased and
+    the matched filter smeared the envelope: LOS rows called NLOS, ranges 1.2 m off."""
     rng = np.random.default_rng(14)
     irs = [dataclasses.replace(ir, h=np.abs(ir.h)) for ir in _complex_irs(rng, 20)]
+    info = _anchor_info()
+    if not with_fc:
+        info = dataclasses.replace(info, radar=dataclasses.replace(info.radar, fc=None))
     rec = tmp_path / "abs.mcap"
-    _write(rec, [_anchor_info(), *irs])
+    _write(rec, [info, *irs])
     out = tmp_path / "r.jsonl"
     proc = uwbnet("ranging", str(rec), "--out", str(out))
     assert proc.returncode == 0, proc.stderr
@@ -191,7 +197,7 @@ def test_magnitude_rows_of_a_complex_baseband_radar(tmp_path: Path) -> None:
     for rx, true_range, los in (("rx1", LOS_RANGE, True), ("rx2", NLOS_RANGE, False)):
         got = [x for x in lines if x["rx"] == rx]
         # the magnitudes lost the paths' phases, which the matched filter would use: within a
-        # third of a sample (10 cm) rather than the complex rows' 5 cm (1.2 m off before)
+        # third of a sample (10 cm) rather than the complex rows' 5 cm
         assert np.median([abs(x["range"] - true_range) for x in got]) < 0.1
         # (the NLOS rows' few paths overlap incoherently without their phases: 3-5 of 20
         # called LOS here, against none from the complex rows)
@@ -241,25 +247,3 @@ def test_corrupt_truncated_missing_and_empty_inputs(foyer: Path, tmp_path: Path)
     assert not out.exists() and not Path(str(out) + ".partial").exists()
     proc = uwbnet("ranging", str(foyer), "--out", str(out), "--method", "music")
     assert proc.returncode == 2 and "invalid choice" in proc.stderr
-
-
-def test_magnitude_rows_without_a_carrier_above_nyquist(tmp_path: Path) -> None:
-    """The same magnitudes from a node_info without ``fc``: the band (6.2-6.7 GHz at
-    998.4 MHz sampling) straddles 13 fs / 2, so it cannot be a real sampled passband, and
-    the rows are ranged as the envelope around the band's centre (were the aliased real
-    passband's matched filter before)."""
-    rng = np.random.default_rng(14)
-    irs = [dataclasses.replace(ir, h=np.abs(ir.h)) for ir in _complex_irs(rng, 20)]
-    info = _anchor_info()
-    info = dataclasses.replace(info, radar=dataclasses.replace(info.radar, fc=None))
-    rec = tmp_path / "abs_nofc.mcap"
-    _write(rec, [info, *irs])
-    out = tmp_path / "r.jsonl"
-    proc = uwbnet("ranging", str(rec), "--out", str(out))
-    assert proc.returncode == 0, proc.stderr
-    lines = [json.loads(x) for x in out.read_text().splitlines()]
-    assert len(lines) == 40
-    for rx, true_range, los in (("rx1", LOS_RANGE, True), ("rx2", NLOS_RANGE, False)):
-        got = [x for x in lines if x["rx"] == rx]
-        assert np.median([abs(x["range"] - true_range) for x in got]) < 0.1
-        assert np.mean([x["los"] == los for x in got]) >= 0.7

@@ -144,24 +144,23 @@ class FirstPathRanger:
                 quality=empty,
                 features=np.empty((0, len(FEATURES))),
             )
-        # real rows of a complex-baseband radar (fc > 0) that are never negative are the
-        # magnitudes of its samples (a noise component is negative half the time): the
-        # envelope itself, with Rayleigh noise, detected as complex baseband. Treated as a
-        # real passband signal, their band (above fs / 2) aliased to a carrier-dependent
-        # frequency and the matched filter with it (accuracy 88 % on channel 2, 93 % on 5)
-        if h.dtype.kind != "c" and self.radar.fc > 0.0 and bool(np.all(h >= 0)):
-            h = h.astype(np.complex64)
-        # the same without a carrier, when the band cannot be a real signal sampled at fs:
-        # ranged as the envelope of the complex baseband around the band's centre
-        real = h.dtype.kind != "c" and self.radar.fc <= 0.0
-        if real and not _real_passband(self.radar) and bool(np.all(h >= 0)):
-            return self._envelope_ranger().process(h.astype(np.complex64))
+        # real rows that are never negative are the magnitudes of complex samples (a noise
+        # component is negative half the time): the envelope itself, with Rayleigh noise,
+        # detected as complex baseband. Treated as a real passband signal, their band (above
+        # fs / 2) aliased to a carrier-dependent frequency and the matched filter with it
+        # (accuracy 88 % on channel 2, 93 % on 5). Without a carrier (fc), only when the band
+        # cannot be a real signal sampled at fs, and around the band's centre.
+        if h.dtype.kind != "c" and bool(np.all(h >= 0)):
+            if self.radar.fc > 0.0:
+                h = h.astype(np.complex64)
+            elif not _real_passband(self.radar):
+                return self._envelope_ranger().process(h.astype(np.complex64))
         is_complex = h.dtype.kind == "c"
         band = self._filter(is_complex)
         y = band.apply(h) if band is not None else h
         env = envelope(y)
         matched = band is not None
-        # exact zeros (a padded window) are not noise samples: kept out of the noise estimate
+        # the zero runs padding a window are not noise samples: kept out of the noise estimate
         valid = measured(h)
         est = self._toa.estimate_envelope(
             env, complex_input=is_complex, matched=matched, valid=valid

@@ -242,13 +242,7 @@ def test_by_default_the_filter_keeps_its_slip_model_through_a_corrected_stop() -
 
 @pytest.mark.parametrize("links", [1, 3])
 def test_the_mapper_gives_the_closer_its_min_links(links: int) -> None:
-    mapper = EchoSlamMapper(
-        ANTENNAS,
-        fs=32.4e9,
-        t0=0.0,
-        bandwidth=8.9e9,
-        config=MapperConfig(turn_closure=True, turn_closure_min_links=links),
-    )
+    mapper = _closing_mapper(turn_closure_min_links=links)
     assert mapper.turn_closer.config.min_links == links
 
 
@@ -297,15 +291,20 @@ def test_the_kept_turn_corrections_are_bounded(monkeypatch: pytest.MonkeyPatch) 
     assert np.allclose(mapper.turn_corrections, [0.03, 0.04, 0.05])  # the last 3 of 5 stops
 
 
-def _mapper(**config: object) -> EchoSlamMapper:
-    """A turn-closing mapper with the odometry-logging filter and the fixed closer."""
-    mapper = EchoSlamMapper(
+def _closing_mapper(**config: object) -> EchoSlamMapper:
+    """A turn-closing mapper with its own filter and closer."""
+    return EchoSlamMapper(
         ANTENNAS,
         fs=32.4e9,
         t0=0.0,
         bandwidth=8.9e9,
         config=MapperConfig(warmup=0, lag=0, turn_closure=True, **config),  # type: ignore[arg-type]
     )
+
+
+def _mapper(**config: object) -> EchoSlamMapper:
+    """A turn-closing mapper with the odometry-logging filter and the fixed closer."""
+    mapper = _closing_mapper(**config)
     mapper.filter = _OdometryLog(mapper.filter.config)  # type: ignore[assignment]
     mapper.turn_closer = _FixedCloser()  # type: ignore[assignment]
     return mapper

@@ -1,0 +1,1063 @@
+"""The robot's path from stop-to-stop scan registration: a pose graph over the stops.
+
+Beyond the CoLOR chapter (whose Section 6 estimates the path with the particle filter): a
+deterministic path estimator for stop-and-turn recordings (the robot drives, stops, turns a
+full circle on the spot in small steps, drives on), in the manner of graph SLAM
+(Lu and Milios, "Globally consistent range scan alignment for environment mapping",
+Autonomous Robots 1997; Olson, "Real-time correlative scan matching", ICRA 2009, for the
+grid search).
+
+1. **Front end** (:func:`scan_front_end`): per acquisition the echo pairs ``(r1, r2)`` as
+   :class:`~fusion_center.mapping.pipeline.EchoSlamMapper` makes them
+   (:class:`~fusion_center.mapping.echoes.EnvelopePeakEchoExtractor`,
+   :func:`~fusion_center.mapping.echoes.pair_echoes`,
+   :class:`~fusion_center.mapping.grouping.KalmanEchoGrouper`) and the odometry; an
+   odometry step longer than ``drive_reset`` starts a new stop (:func:`segment_stops`).
+2. **Per stop** (:func:`stop_scan`): the in-stop headings corrected by the turn closure
+   (:class:`~fusion_center.mapping.turn_closure.EchoBearingTurnCloser`) and the stop's
+   reflectors: the echo tracks joined into reflectors fixed in the stop frame, each with its
+   image point ``T'`` (eq. (11) and Fig. 19 of the chapter: the transmitter mirrored in a
+   wall, point-reflected in a corner; a point scatterer's echoes invert to about twice its
+   position, within millimetres at metres of range).
+3. **Registration** (:class:`ReflectorRegistration`): the pose of stop B in stop A's frame
+   that best explains B's reflector images by A's reflectors, each of A's taken as a wall
+   (the same line seen from B: ``T'_B = t + 2 (d - n . t) n``) or as a corner or point (the
+   same point: ``T'_B = 2 c - t``), by a coarse-to-fine grid around the odometry's prior, a
+   robust refinement, an explained fraction and an ambiguity test.
+4. **Pose graph** (:class:`StopPoseGraph`): odometry edges (the turn's corrected end heading
+   composed with the drive, with the slip model's noise), registration edges between
+   consecutive stops and loop closures between stops close by the current estimate, solved
+   by :func:`scipy.optimize.least_squares` (sparse Jacobian) with a Cauchy weight per
+   registration edge; solve, look for loop closures around the new estimate, solve again.
+5. Output (:meth:`StopGraphPathEstimator.estimate`): ``[t, x, y, yaw]`` of every acquisition
+   in the frame of the first pose (the stop's pose and its corrected in-stop heading), the
+   layout of map.json's trajectory.
+
+Assumes, as the turn closure does, that the transmitter is the turning centre (the origin
+of the robot frame): the reflectors' images are then fixed in the stop frame.
+
+Pure numpy / scipy; poses ``[x, y, yaw]`` (m, rad), ranges bistatic (m).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+import scipy.sparse
+from scipy.optimize import least_squares
+
+from fusion_center.mapping.echoes import EnvelopePeakEchoExtractor, pair_echoes
+from fusion_center.mapping.grouping import KalmanEchoGrouper
+from fusion_center.mapping.models import invert_image
+from fusion_center.mapping.relocalise import compose_poses
+from fusion_center.mapping.turn_closure import EchoBearingTurnCloser, TurnClosureConfig
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _wrap(a: npt.ArrayLike) -> FloatArray:
+    return (np.asarray(a, float) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _rot(a: float) -> FloatArray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s], [s, c]])
+
+
+def relative_pose(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Pose ``b`` (3,) in the frame of pose ``a`` (3,): ``a^{-1} (+) b`` (heading wrapped)."""
+    d = _rot(-a[2]) @ (np.asarray(b[:2], float) - a[:2])
+    return np.array([d[0], d[1], float(_wrap(b[2] - a[2]))])
+
+
+# --------------------------------------------------------------------------- front end
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ScanLog:
+    """Front-end output of a recording, one entry per acquisition.
+
+    Attributes
+    ----------
+    t : ndarray, shape (n,)
+        Acquisition times, s.
+    odometry : ndarray, shape (n, 3)
+        ``(dx, dy, dyaw)`` since the previous acquisition (robot frame, m, rad; row 0 zero).
+    pairs : list of ndarray, shape (m_k, 2)
+        Echo pairs ``(r1, r2)``, m.
+    groups : list of ndarray of int, shape (m_k,)
+        Echo-track ids of the pairs (restarted at every drive).
+    """
+
+    t: FloatArray
+    odometry: FloatArray
+    pairs: list[FloatArray]
+    groups: list[npt.NDArray[np.int64]]
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.t).shape[0]
+        if np.asarray(self.odometry).shape != (n, 3):
+            raise ValueError(f"ScanLog.odometry must have shape ({n}, 3)")
+        if len(self.pairs) != n or len(self.groups) != n:
+            raise ValueError(f"ScanLog needs {n} pair and group arrays, one per acquisition")
+        if not np.all(np.isfinite(self.odometry)):
+            raise ValueError("ScanLog.odometry must be finite")
+
+
+def scan_front_end(
+    frames: Iterable[tuple[float, npt.NDArray, npt.ArrayLike]],
+    *,
+    fs: float,
+    t0: float,
+    bandwidth: float,
+    min_range: float = 1.2,
+    max_range: float = 10.0,
+    threshold: float = 8.0,
+    dynamic_db: float = 6.0,
+    max_echoes: int = 4,
+    pair_gate: float = 0.6,
+    warmup: int = 24,
+    drive_reset: float = 0.1,
+) -> ScanLog:
+    """Echo pairs and echo-track ids of every acquisition, as EchoSlamMapper makes them.
+
+    The defaults are :class:`~fusion_center.mapping.pipeline.MapperConfig`'s. ``frames``
+    yields ``(t, h, odometry)``: time (s), impulse responses (2, n) at rx1 and rx2, and
+    ``(dx, dy, dyaw)`` since the previous acquisition (required: the path is built on it).
+    """
+    ext = EnvelopePeakEchoExtractor(
+        fs=fs,
+        t0=t0,
+        bandwidth=bandwidth,
+        min_range=min_range,
+        max_range=max_range,
+        threshold=threshold,
+        dynamic_db=dynamic_db,
+        max_echoes=max_echoes,
+        warmup=warmup,
+    )
+    grouper = KalmanEchoGrouper()
+    ts: list[float] = []
+    odos: list[FloatArray] = []
+    pairs: list[FloatArray] = []
+    groups: list[npt.NDArray[np.int64]] = []
+
+    def take(echo_sets: list) -> None:
+        for echoes in echo_sets:
+            k = len(pairs)
+            z = pair_echoes(echoes, pair_gate)
+            if np.hypot(odos[k][0], odos[k][1]) > drive_reset:
+                grouper.reset()
+            pairs.append(z)
+            groups.append(np.asarray(grouper.step(z), np.int64))
+
+    for t, h, odo in frames:
+        if odo is None:
+            raise ValueError(f"acquisition at t = {t} s has no odometry (the stop graph needs it)")
+        o = np.asarray(odo, float).reshape(-1)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise ValueError(f"acquisition at t = {t} s: odometry must be 3 finite numbers")
+        ts.append(float(t))
+        odos.append(o if ts[1:] else np.zeros(3))
+        take(ext.push(np.asarray(h)))
+    take(ext.flush())
+    return ScanLog(
+        t=np.array(ts, float), odometry=np.array(odos).reshape(-1, 3), pairs=pairs, groups=groups
+    )
+
+
+def segment_stops(odometry: npt.ArrayLike, drive_reset: float = 0.1) -> list[tuple[int, int]]:
+    """Index ranges ``[start, end)`` of the stops: an odometry step longer than
+    ``drive_reset`` (m) starts a new stop (the acquisition after the drive is its first)."""
+    o = np.asarray(odometry, float).reshape(-1, 3)
+    if o.shape[0] == 0:
+        return []
+    starts = np.r_[0, np.flatnonzero(np.hypot(o[1:, 0], o[1:, 1]) > drive_reset) + 1]
+    ends = np.r_[starts[1:], o.shape[0]]
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+
+
+# --------------------------------------------------------------------------- per stop
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopScan:
+    """One stop: its acquisitions, corrected in-stop poses and reflectors (stop frame).
+
+    Attributes
+    ----------
+    start, end : int
+        Acquisition index range ``[start, end)``.
+    poses : ndarray, shape (n, 3)
+        Pose of each acquisition in the stop frame (the first acquisition's pose): heading
+        ``phi_k + e_k`` (odometry plus turn-closure correction); position 0 when the stop is
+        a turn on the spot, else the odometry's.
+    end_sigma : float
+        Standard deviation of the last acquisition's heading relative to the first, rad
+        (the closure's, or the odometry's summed slip noise when the stop was not closed).
+    closed : bool
+        Whether the turn closure corrected the stop.
+    on_the_spot : bool
+        Whether the stop is a turn on the spot (its reflectors are only formed then).
+    images : ndarray, shape (R, 2)
+        Reflector image points ``T'`` in the stop frame, m.
+    weights : ndarray, shape (R,)
+        Echo pairs behind each reflector.
+    image_sigma : ndarray, shape (R,)
+        Robust scatter of each reflector's pair images, m.
+    """
+
+    start: int
+    end: int
+    poses: FloatArray
+    end_sigma: float
+    closed: bool
+    on_the_spot: bool
+    images: FloatArray
+    weights: FloatArray
+    image_sigma: FloatArray
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopGraphConfig:
+    """Parameters of :class:`StopGraphPathEstimator` (SI units).
+
+    Attributes
+    ----------
+    drive_reset : float
+        Odometry step (m) that starts a new stop (``MapperConfig.drive_reset``).
+    spot_translation : float
+        Net odometry displacement of a stop (m) up to which it is a turn on the spot (plus
+        3.5 sigma of the per-step translation floor, as ``MapperConfig``).
+    slip_translation, slip_rotation, slip_heading_per_metre : float
+        Odometry noise (m/m, rad/rad, rad/m): ``SlamConfig``'s defaults, the recorder's
+        ``OdometrySlip``.
+    slip_floor : tuple of float
+        Per-acquisition odometry noise floor (m, rad).
+    min_reflector_pairs : int
+        Pairs a reflector needs.
+    max_reflector_scatter : float
+        Largest robust scatter of a reflector's pair images, m (beyond: clutter chained).
+    merge_distance : float
+        Reflectors of one stop whose images lie closer than this are one (the closure's
+        complete linkage splits a reflector whose bearing drifts over the turn), m.
+    heading_sigma : float
+        Heading noise of a stop's in-stop poses after the closure, rad: a reflector image at
+        distance ``rho`` gets ``rho * heading_sigma`` added (in quadrature) to its scale.
+    coarse_sigma, fine_sigma : float
+        Image mismatch scale of the coarse grid and of the fine grid and refinement, m.
+    coarse_step, fine_step : tuple of float
+        Grid steps ``(m, rad)``.
+    window : tuple of float
+        Largest half-width of the search ``(m, rad)``; the prior's 3 sigma otherwise.
+    min_window : tuple of float
+        Smallest half-width of the search ``(m, rad)``.
+    min_matched : int
+        Distinct reflectors of B a registration must explain.
+    min_explained : float
+        Fraction of B's reflector pairs (weights) it must explain.
+    ambiguity_gap : float
+        A second mode of the coarse score (outside 3 sigma of the refined covariance) within
+        this many nepers of the best makes the match ambiguous (refused).
+    match_gate : float
+        Image distance, in ``fine_sigma``, within which a reflector counts as explained.
+    consistency : tuple of float
+        Largest disagreement ``(m, rad)`` of the two directions of a registration (B in A,
+        and A in B inverted); beyond it the match is refused.
+    cauchy_scale : float
+        Scale of the Cauchy weight of a registration edge in the graph, in sigmas of its
+        Mahalanobis distance.
+    edge_sigma_floor : tuple of float
+        Floor of a registration edge's standard deviations ``(m, rad)`` (model errors the
+        image scatter does not see: higher-order images, a point taken for a corner).
+    loop_distance : float
+        Stops closer than this by the current estimate are tried for a loop closure, m.
+    loop_window : tuple of float
+        Prior standard deviation ``(m, rad)`` of a loop closure's search around the current
+        estimate.
+    loop_rounds : int
+        Solve / look for loop closures rounds.
+    closure_min_links : int
+        ``TurnClosureConfig.min_links`` of the stops' turn closures (reflectors seen at both
+        ends of the turn).
+    """
+
+    drive_reset: float = 0.1
+    spot_translation: float = 0.05
+    slip_translation: float = 0.02
+    slip_rotation: float = 0.03
+    slip_heading_per_metre: float = np.radians(1.0)
+    slip_floor: tuple[float, float] = (0.002, np.radians(0.1))
+    min_reflector_pairs: int = 4
+    max_reflector_scatter: float = 0.3
+    merge_distance: float = 0.15
+    heading_sigma: float = np.radians(0.5)
+    coarse_sigma: float = 0.12
+    fine_sigma: float = 0.03
+    coarse_step: tuple[float, float] = (0.06, np.radians(1.5))
+    fine_step: tuple[float, float] = (0.015, np.radians(0.25))
+    window: tuple[float, float] = (0.8, np.radians(25.0))
+    min_window: tuple[float, float] = (0.12, np.radians(3.0))
+    min_matched: int = 2
+    min_explained: float = 0.3
+    ambiguity_gap: float = 3.0
+    match_gate: float = 3.0
+    consistency: tuple[float, float] = (0.05, np.radians(1.0))
+    cauchy_scale: float = 3.0
+    edge_sigma_floor: tuple[float, float] = (0.01, np.radians(0.2))
+    loop_distance: float = 3.0
+    loop_window: tuple[float, float] = (0.15, np.radians(3.0))
+    loop_rounds: int = 3
+    closure_min_links: int = 1
+
+    def __post_init__(self) -> None:
+        for name in (
+            "drive_reset",
+            "coarse_sigma",
+            "fine_sigma",
+            "match_gate",
+            "cauchy_scale",
+            "max_reflector_scatter",
+        ):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0.0):
+                raise ValueError(f"StopGraphConfig.{name} must be > 0, got {v!r}")
+        for name in (
+            "coarse_step",
+            "fine_step",
+            "window",
+            "min_window",
+            "loop_window",
+            "consistency",
+        ):
+            v = getattr(self, name)
+            if len(v) != 2 or not all(np.isfinite(x) and x > 0 for x in v):
+                raise ValueError(f"StopGraphConfig.{name} must be two numbers > 0, got {v!r}")
+        for name in ("min_reflector_pairs", "min_matched", "loop_rounds", "closure_min_links"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"StopGraphConfig.{name} must be an integer >= 1, got {v!r}")
+        if not 0.0 <= self.min_explained <= 1.0:
+            raise ValueError(
+                f"StopGraphConfig.min_explained must be in [0, 1], got {self.min_explained!r}"
+            )
+
+
+def _group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:
+    """Median of ``x`` per group index 0 .. n-1 (0 for an empty group)."""
+    order = np.lexsort((x, group))
+    xs, gs = x[order], group[order]
+    start = np.searchsorted(gs, np.arange(n))
+    cnt = np.bincount(gs, minlength=n)
+    lo = np.minimum(start + np.maximum(cnt - 1, 0) // 2, max(xs.size - 1, 0))
+    hi = np.minimum(start + cnt // 2, max(xs.size - 1, 0))
+    if xs.size == 0:
+        return np.zeros(n)
+    return np.where(cnt > 0, 0.5 * (xs[lo] + xs[hi]), 0.0)
+
+
+def stop_scan(
+    log: ScanLog,
+    start: int,
+    end: int,
+    closer: EchoBearingTurnCloser,
+    config: StopGraphConfig,
+) -> StopScan:
+    """Corrected in-stop poses and reflectors of acquisitions ``[start, end)`` of ``log``.
+
+    The headings are ``theta_k = phi_k + e_k`` with ``phi_k`` the odometry's heading since
+    the stop's first acquisition and ``e_k`` the turn closure's correction
+    (:mod:`fusion_center.mapping.turn_closure`). Each echo pair gives the image point
+    ``T' = R(theta_k) u`` in the stop frame (``u``: the circles' intersection in the array
+    frame, :func:`~fusion_center.mapping.models.invert_image`; eq. (11) of the chapter); the
+    closure's reflectors (echo tracks joined by image distance and world bearing) give one
+    image each: the per-coordinate median of their pairs' images.
+    """
+    cfg = config
+    odo = log.odometry[start:end]
+    n = end - start
+    dyaw = odo[:, 2].copy()
+    dyaw[0] = 0.0
+    phi = np.cumsum(dyaw)
+    # odometry positions in the stop frame (composed through the turn)
+    pos = np.zeros((n, 3))
+    for k in range(1, n):  # a loop over one stop's ~120 steps, once per stop
+        pos[k] = compose_poses(pos[k - 1 : k], odo[k])[0]
+    steps = max(n - 1, 0)
+    bound = cfg.spot_translation + min(
+        3.5 * cfg.slip_floor[0] * np.sqrt(steps), cfg.spot_translation
+    )
+    on_spot = bool(np.hypot(pos[-1, 0], pos[-1, 1]) <= bound)
+    pairs = log.pairs[start:end]
+    groups = log.groups[start:end]
+    e = np.zeros(n)
+    s_step = cfg.slip_rotation * np.abs(dyaw[1:]) + cfg.slip_floor[1]
+    end_sigma = float(np.sqrt(np.sum(s_step**2)))
+    closed = False
+    if on_spot and n > 2:
+        res = closer.close(dyaw, list(pairs), list(groups))
+        if np.isfinite(res.end_sigma):
+            e, end_sigma, closed = res.correction, float(res.end_sigma), True
+    theta = phi + e
+    poses = np.column_stack([pos[:, :2] * (not on_spot), theta])
+    empty = StopScan(
+        start=start,
+        end=end,
+        poses=poses,
+        end_sigma=end_sigma,
+        closed=closed,
+        on_the_spot=on_spot,
+        images=np.zeros((0, 2)),
+        weights=np.zeros(0),
+        image_sigma=np.zeros(0),
+    )
+    k = np.concatenate([np.full(len(z), i) for i, z in enumerate(pairs)]).astype(np.intp)
+    if not on_spot or k.size == 0:
+        return empty
+    z = np.concatenate([np.reshape(p, (-1, 2)) for p in pairs])
+    gid = np.concatenate([np.asarray(g, np.int64) for g in groups])
+    u = invert_image(z, closer.rx_body)
+    ok = np.all(np.isfinite(u), 1)
+    k, gid, u = k[ok], gid[ok], u[ok]
+    if k.size == 0:
+        return empty
+    c, s = np.cos(theta[k]), np.sin(theta[k])
+    img = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]])
+    rho = np.hypot(u[:, 0], u[:, 1])
+    world = theta[k] + np.arctan2(u[:, 1], u[:, 0])
+    label = closer._reflectors(gid, rho, world)  # the closure's own joining of echo tracks
+    nr = int(label.max()) + 1
+    cnt = np.bincount(label, minlength=nr).astype(float)
+    med = np.column_stack([_group_median(img[:, j], label, nr) for j in range(2)])
+    dev = np.linalg.norm(img - med[label], axis=1)
+    scatter = 1.4826 * _group_median(dev, label, nr) / np.sqrt(2.0)
+    keep = (cnt >= cfg.min_reflector_pairs) & (scatter <= cfg.max_reflector_scatter)
+    med, cnt, scatter = _merge_reflectors(med[keep], cnt[keep], scatter[keep], cfg.merge_distance)
+    return StopScan(
+        start=start,
+        end=end,
+        poses=poses,
+        end_sigma=end_sigma,
+        closed=closed,
+        on_the_spot=on_spot,
+        images=med,
+        weights=cnt,
+        image_sigma=scatter,
+    )
+
+
+def _merge_reflectors(
+    images: FloatArray, weights: FloatArray, scatter: FloatArray, distance: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Join reflectors whose images lie within ``distance`` (heaviest first, greedy): the
+    weighted mean image, the summed weight, the weighted scatter plus the images' spread."""
+    order = np.argsort(-weights)
+    images, weights, scatter = images[order], weights[order], scatter[order]
+    free = np.ones(len(weights), bool)
+    out_i, out_w, out_s = [], [], []
+    for r in range(len(weights)):  # a handful of reflectors per stop
+        if not free[r]:
+            continue
+        near = free & (np.linalg.norm(images - images[r], axis=1) < distance)
+        free &= ~near
+        w = weights[near]
+        m = (w[:, None] * images[near]).sum(0) / w.sum()
+        spread = np.sqrt((w * np.sum((images[near] - m) ** 2, 1)).sum() / w.sum() / 2)
+        out_i.append(m)
+        out_w.append(w.sum())
+        out_s.append(float(np.hypot((w * scatter[near]).sum() / w.sum(), spread)))
+    return np.array(out_i).reshape(-1, 2), np.array(out_w), np.array(out_s)
+
+
+# --------------------------------------------------------------------------- registration
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Registration:
+    """Result of registering stop B to stop A.
+
+    Attributes
+    ----------
+    pose : ndarray, shape (3,)
+        Pose of B's frame in A's frame ``[x, y, yaw]`` (m, rad).
+    cov : ndarray, shape (3, 3)
+        Its covariance.
+    explained : float
+        Fraction of B's reflector pairs explained by A's reflectors at ``pose``.
+    matched : int
+        Distinct B reflectors explained.
+    accepted : bool
+        Whether the match passed the tests (explained fraction, matched reflectors,
+        ambiguity, a regular covariance).
+    reason : str
+        Why it was refused ("" when accepted).
+    """
+
+    pose: FloatArray
+    cov: FloatArray
+    explained: float
+    matched: int
+    accepted: bool
+    reason: str = ""
+
+
+def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
+    """Images of A's reflectors (R, 2; A frame) as stop B at ``pose`` (n, 3) would see them,
+    in B's frame, under each hypothesis: shape (n, 2R, 2), walls first, then points.
+
+    With A's transmitter at its origin, reflector ``I`` is the wall ``n . x = d`` with
+    ``n = I / |I|``, ``d = |I| / 2`` (the perpendicular bisector, :func:`~fusion_center.
+    mapping.models.states_from_image`), or the corner or point ``c = I / 2``. From B's
+    transmitter ``t`` the images are (Fig. 19 / eq. (11) of the CoLOR chapter)
+
+    .. math::
+        T'_{wall} = t + 2 (d - n \\cdot t) n, \\qquad T'_{point} = 2 c - t = I - t,
+
+    both rotated into B's frame: ``R(-yaw) (T' - t)``. A wall B sees from behind
+    (``d - n . t <= 0.05``) is NaN.
+    """
+    q = np.asarray(pose, float).reshape(-1, 3)
+    t = q[:, None, :2]
+    norm = np.maximum(np.linalg.norm(images_a, axis=1), 1e-9)
+    nrm = images_a / norm[:, None]
+    s = 0.5 * norm[None] - np.sum(nrm[None] * t, -1)  # (n, R)
+    wall = 2.0 * s[..., None] * nrm[None]  # T' - t
+    wall = np.where((s > 0.05)[..., None], wall, np.nan)
+    point = images_a[None] - 2.0 * t
+    rel = np.concatenate([wall, point], axis=1)  # (n, 2R, 2), A-frame axes
+    c, sn = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
+    return np.stack([c * rel[..., 0] + sn * rel[..., 1], -sn * rel[..., 0] + c * rel[..., 1]], -1)
+
+
+class ReflectorRegistration:
+    """Pose of stop B in stop A's frame from their reflector sets (see the module).
+
+    Score of a candidate pose ``q`` (log-likelihood of B's reflector images plus the prior):
+
+    .. math::
+        s(q) = \\sum_j w_j \\ln\\Big(\\lambda + \\sum_h
+        \\exp\\big(-\\lVert I^B_j - P_h(q) \\rVert^2 / 2\\sigma^2\\big)\\Big)
+        - \\tfrac12 (q - \\hat q)^T P^{-1} (q - \\hat q)
+
+    with ``P_h(q)`` A's reflectors' predicted images (:func:`predicted_images`, each as a
+    wall and as a point), ``w_j`` the square root of B's pairs behind reflector ``j`` (the
+    pairs of one reflector are not independent: one image each), ``lambda = exp(-2)`` (a
+    reflector more than 2 sigma from every prediction is clutter). Coarse grid (``sigma =
+    coarse_sigma``) over 3 sigma of the prior, fine grid (``fine_sigma``) around its best,
+    then Gauss-Newton with Cauchy weights on the explained reflectors' image residuals,
+    whose inverse normal matrix (floored by ``edge_sigma_floor``) is the covariance.
+    Correlative scan matching (Olson 2009) on reflectors; beyond the chapter.
+    """
+
+    def __init__(self, config: StopGraphConfig | None = None) -> None:
+        self.config = config or StopGraphConfig()
+
+    def _scores(
+        self, poses: FloatArray, a: StopScan, b: StopScan, sigma: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Log-likelihood (n,) and the best hypothesis' squared distance (n, Rb)."""
+        pred = predicted_images(a.images, poses)  # (n, H, 2)
+        d2 = np.sum((b.images[None, :, None, :] - pred[:, None]) ** 2, -1)  # (n, Rb, H)
+        d2 = np.where(np.isnan(d2), np.inf, d2)
+        best = d2.min(-1)
+        sig2 = self._sigma(b, sigma) ** 2
+        lik = np.exp(-0.5 * d2 / sig2[None, :, None]).sum(-1)
+        w = np.sqrt(b.weights)
+        ll = np.log(np.exp(-2.0) + lik) @ w
+        return ll, best
+
+    def _sigma(self, b: StopScan, base: float) -> FloatArray:
+        """Image mismatch scale of each of B's reflectors, m: ``base``, its own scatter and
+        its distance times ``heading_sigma``, in quadrature."""
+        rho = np.linalg.norm(b.images, axis=1)
+        return np.sqrt(base**2 + b.image_sigma**2 + (rho * self.config.heading_sigma) ** 2)
+
+    def register(
+        self, a: StopScan, b: StopScan, prior: npt.ArrayLike, prior_cov: npt.ArrayLike
+    ) -> Registration:
+        """Register stop ``b`` to stop ``a`` around ``prior`` (pose of B in A, (3,)) with
+        covariance ``prior_cov`` (3, 3)."""
+        cfg = self.config
+        prior = np.asarray(prior, float).reshape(3)
+        prior_cov = np.asarray(prior_cov, float).reshape(3, 3)
+        refused = Registration(pose=prior, cov=prior_cov, explained=0.0, matched=0, accepted=False)
+        if len(a.images) < cfg.min_matched or len(b.images) < cfg.min_matched:
+            return _replace_reason(refused, "too few reflectors")
+        info = np.linalg.inv(prior_cov + np.diag([1e-6, 1e-6, 1e-8]))
+        sd = np.sqrt(np.diag(prior_cov))
+        half_xy = np.clip(3 * sd[:2], cfg.min_window[0], cfg.window[0])
+        half_yaw = float(np.clip(3 * sd[2], cfg.min_window[1], cfg.window[1]))
+
+        def axis(half: float, step: float) -> FloatArray:
+            k = int(np.ceil(half / step - 1e-9))
+            return np.arange(-k, k + 1) * step
+
+        def grid(base: FloatArray, axes: list[FloatArray]) -> FloatArray:
+            mesh = np.meshgrid(*axes, indexing="ij")
+            return base + np.stack([m.ravel() for m in mesh], -1)
+
+        def log_prior(q: FloatArray) -> FloatArray:
+            d = q - prior
+            d[:, 2] = _wrap(d[:, 2])
+            return -0.5 * np.einsum("ni,ij,nj->n", d, info, d)
+
+        cs, cy = cfg.coarse_step
+        coarse = grid(prior, [axis(half_xy[0], cs), axis(half_xy[1], cs), axis(half_yaw, cy)])
+        score = np.concatenate(
+            [
+                self._scores(chunk, a, b, cfg.coarse_sigma)[0]
+                for chunk in np.array_split(coarse, max(1, coarse.shape[0] // 4000))
+            ]
+        ) + log_prior(coarse)
+        top = coarse[int(np.argmax(score))]
+        fs, fy = cfg.fine_step
+        fine = grid(top, [axis(cs, fs), axis(cs, fs), axis(cy, fy)])
+        fscore = self._scores(fine, a, b, cfg.fine_sigma)[0] + log_prior(fine)
+        pose = fine[int(np.argmax(fscore))]
+        pose, cov, explained_mask = self._refine(pose, a, b, prior, info)
+        if pose is None:
+            return _replace_reason(refused, "refinement failed")
+        wsum = float(b.weights.sum())
+        explained = float(b.weights[explained_mask].sum() / max(wsum, 1e-12))
+        matched = int(explained_mask.sum())
+        reg = Registration(pose=pose, cov=cov, explained=explained, matched=matched, accepted=True)
+        if matched < cfg.min_matched:
+            return _replace_reason(reg, f"{matched} reflectors matched")
+        if explained < cfg.min_explained:
+            return _replace_reason(reg, f"explained {explained:.2f}")
+        # ambiguity: another coarse mode, not within 3 sigma of the refined pose, nearly as good
+        d = coarse - pose
+        d[:, 2] = _wrap(d[:, 2])
+        cov_s = cov + np.diag([cs**2, cs**2, cy**2])
+        m2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov_s), d)
+        far = m2 > 9.0
+        if np.any(far):
+            # the coarse score at the refined pose's own cell
+            own = float(score[~far].max()) if np.any(~far) else float(score.max())
+            if float(score[far].max()) > own - cfg.ambiguity_gap:
+                return _replace_reason(reg, "ambiguous")
+        return reg
+
+    def register_both(
+        self, a: StopScan, b: StopScan, prior: npt.ArrayLike, prior_cov: npt.ArrayLike
+    ) -> Registration:
+        """:meth:`register` in both directions (B in A, and A in B inverted), accepted only
+        when both are and they agree within ``consistency``; the result is the forward
+        match with the larger of the two covariances (a wrong correspondence seldom wins
+        both ways: the two directions explain different reflector sets)."""
+        cfg = self.config
+        prior = np.asarray(prior, float).reshape(3)
+        prior_cov = np.asarray(prior_cov, float).reshape(3, 3)
+        fwd = self.register(a, b, prior, prior_cov)
+        if not fwd.accepted:
+            return fwd
+        inv_prior = relative_pose(prior, np.zeros(3))
+        jac = _inverse_jacobian(prior)
+        back = self.register(b, a, inv_prior, jac @ prior_cov @ jac.T)
+        if not back.accepted:
+            return _replace_reason(fwd, f"reverse {back.reason}")
+        other = relative_pose(back.pose, np.zeros(3))
+        d = other - fwd.pose
+        d[2] = float(_wrap(d[2]))
+        if np.hypot(d[0], d[1]) > cfg.consistency[0] or abs(d[2]) > cfg.consistency[1]:
+            return _replace_reason(fwd, "inconsistent")
+        jb = _inverse_jacobian(back.pose)
+        cov_b = jb @ back.cov @ jb.T
+        # the larger of the two in every direction, and their disagreement
+        lam_f, vec = np.linalg.eigh(fwd.cov)
+        lam_b = np.einsum("ij,jk,ki->i", vec.T, cov_b, vec)
+        cov = vec @ np.diag(np.maximum(lam_f, lam_b)) @ vec.T + np.diag(d**2) / 4.0
+        return Registration(
+            pose=fwd.pose,
+            cov=cov,
+            explained=min(fwd.explained, back.explained),
+            matched=min(fwd.matched, back.matched),
+            accepted=True,
+        )
+
+    def _refine(
+        self,
+        pose: FloatArray,
+        a: StopScan,
+        b: StopScan,
+        prior: FloatArray,
+        prior_info: FloatArray,
+    ) -> tuple[FloatArray | None, FloatArray, npt.NDArray[np.bool_]]:
+        """Gauss-Newton with Cauchy weights on the image residuals of the explained
+        reflectors (nearest hypothesis within ``match_gate`` fine sigmas); numerical
+        Jacobian (3 parameters). Returns the pose, its covariance (without the prior, with
+        the floor) and the explained mask over B's reflectors."""
+        cfg = self.config
+        sig = self._sigma(b, cfg.fine_sigma)
+        gate = cfg.match_gate * sig
+        w = np.sqrt(b.weights)
+        q = pose.copy()
+        mask = np.zeros(len(b.images), bool)
+        cov = np.diag(np.array([cfg.window[0], cfg.window[0], cfg.window[1]]) ** 2)
+        for _ in range(8):
+            pred = predicted_images(a.images, q)[0]  # (H, 2)
+            d2 = np.sum((b.images[:, None] - pred[None]) ** 2, -1)
+            d2 = np.where(np.isnan(d2), np.inf, d2)
+            h = np.argmin(d2, 1)
+            mask = np.sqrt(d2[np.arange(len(h)), h]) < gate
+            if mask.sum() < 2:
+                return None, cov, mask
+            jm, hm = np.flatnonzero(mask), h[mask]
+
+            def resid(p: FloatArray, jm: npt.NDArray = jm, hm: npt.NDArray = hm) -> FloatArray:
+                pr = predicted_images(a.images, p)[0][hm]
+                return ((b.images[jm] - pr) / sig[jm, None]).ravel()
+
+            r = resid(q)
+            jac = np.empty((r.size, 3))
+            for i, eps in enumerate((1e-4, 1e-4, 1e-5)):
+                dq = np.zeros(3)
+                dq[i] = eps
+                jac[:, i] = (resid(q + dq) - r) / eps
+            rr = r.reshape(-1, 2)
+            cw = 1.0 / (1.0 + np.sum(rr**2, 1) / (2 * cfg.match_gate**2))  # Cauchy on the 2-D
+            wt = np.repeat(w[jm] * cw, 2)
+            if not np.all(np.isfinite(jac)):
+                return None, cov, mask
+            a_mat = jac.T @ (wt[:, None] * jac)
+            dp = q - prior
+            dp[2] = _wrap(dp[2])
+            lhs = a_mat + prior_info
+            rhs = -(jac.T @ (wt * r)) - prior_info @ dp
+            try:
+                step = np.linalg.solve(lhs, rhs)
+            except np.linalg.LinAlgError:
+                return None, cov, mask
+            q = q + step
+            if np.all(np.abs(step) < [1e-5, 1e-5, 1e-6]):
+                break
+        try:
+            cov = np.linalg.inv(a_mat + np.diag([1e-6, 1e-6, 1e-6]))
+        except np.linalg.LinAlgError:
+            return None, cov, mask
+        floor = np.array(
+            [cfg.edge_sigma_floor[0], cfg.edge_sigma_floor[0], cfg.edge_sigma_floor[1]]
+        )
+        cov = cov + np.diag(floor**2)
+        q[2] = float(_wrap(q[2]))
+        return q, cov, mask
+
+
+def _inverse_jacobian(pose: FloatArray) -> FloatArray:
+    """Jacobian of the inverse pose ``(-R^T t, -yaw)`` with respect to ``pose``."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    x, y = pose[0], pose[1]
+    return np.array(
+        [
+            [-c, -s, s * x - c * y],
+            [s, -c, c * x + s * y],
+            [0.0, 0.0, -1.0],
+        ]
+    )
+
+
+def _replace_reason(r: Registration, reason: str) -> Registration:
+    return Registration(
+        pose=r.pose,
+        cov=r.cov,
+        explained=r.explained,
+        matched=r.matched,
+        accepted=False,
+        reason=reason,
+    )
+
+
+# --------------------------------------------------------------------------- pose graph
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GraphEdge:
+    """A relative-pose measurement ``z`` (3,) of stop ``j`` in stop ``i``'s frame with
+    covariance ``cov``; ``robust`` edges (registrations) get a Cauchy weight."""
+
+    i: int
+    j: int
+    z: FloatArray
+    cov: FloatArray
+    robust: bool
+    kind: str = "odometry"
+
+
+class StopPoseGraph:
+    """Least-squares pose graph over the stops (Lu and Milios 1997; beyond the chapter).
+
+    Residual of edge ``(i, j, z, C)``: ``L^T (x_i^{-1} (+) x_j - z)`` (heading wrapped) with
+    ``L L^T = C^{-1}``; stop 0 is fixed at the origin. Registration edges are weighted by
+    ``1 / (1 + chi^2 / c^2)`` of their Mahalanobis distance ``chi`` (Cauchy, iteratively
+    reweighted), so a wrong match does not bend the graph; odometry edges keep weight 1.
+    Solved by :func:`scipy.optimize.least_squares` with a sparse Jacobian.
+    """
+
+    def __init__(self, n_stops: int, cauchy_scale: float = 3.0) -> None:
+        if n_stops < 1:
+            raise ValueError(f"a pose graph needs at least one stop, got {n_stops}")
+        self.n = int(n_stops)
+        self.cauchy_scale = float(cauchy_scale)
+        self.edges: list[GraphEdge] = []
+
+    def add(self, edge: GraphEdge) -> None:
+        if not (0 <= edge.i < self.n and 0 <= edge.j < self.n) or edge.i == edge.j:
+            raise ValueError(f"edge ({edge.i}, {edge.j}) outside stops 0..{self.n - 1}")
+        self.edges.append(edge)
+
+    def solve(self, initial: FloatArray, reweight: int = 4) -> tuple[FloatArray, FloatArray]:
+        """Stop poses (n, 3) from ``initial`` (n, 3; row 0 is kept), and the final Cauchy
+        weight of every edge (1 for odometry edges)."""
+        x0 = np.asarray(initial, float).reshape(self.n, 3)
+        if self.n == 1 or not self.edges:
+            return x0.copy(), np.ones(len(self.edges))
+        ei = np.array([e.i for e in self.edges])
+        ej = np.array([e.j for e in self.edges])
+        z = np.array([e.z for e in self.edges])
+        sqi = np.array([_sqrt_info(e.cov) for e in self.edges])
+        robust = np.array([e.robust for e in self.edges])
+        m = len(self.edges)
+        # sparsity: each edge's 3 residuals depend on the 3 + 3 variables of its stops
+        rows = np.repeat(np.arange(3 * m), 6)
+        k3 = np.arange(3)
+        cols_e = np.hstack([3 * (ei - 1)[:, None] + k3, 3 * (ej - 1)[:, None] + k3])
+        cols = np.repeat(cols_e[:, None, :], 3, axis=1).reshape(-1)
+        ok = cols >= 0
+        sparsity = scipy.sparse.coo_matrix(
+            (np.ones(ok.sum()), (rows[ok], cols[ok])), shape=(3 * m, 3 * (self.n - 1))
+        ).tocsr()
+        wt = np.ones(m)
+
+        def errors(x: FloatArray) -> FloatArray:
+            p = np.vstack([x0[:1], x.reshape(-1, 3)])
+            pi, pj = p[ei], p[ej]
+            c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
+            dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
+            rel = np.column_stack([c * dx + s * dy, -s * dx + c * dy, pj[:, 2] - pi[:, 2]])
+            d = rel - z
+            d[:, 2] = _wrap(d[:, 2])
+            return np.einsum("mij,mj->mi", sqi, d)
+
+        def fun(x: FloatArray) -> FloatArray:
+            return (np.sqrt(wt)[:, None] * errors(x)).ravel()
+
+        x = x0[1:].ravel()
+        for _ in range(max(reweight, 1)):
+            sol = least_squares(fun, x, jac_sparsity=sparsity, method="trf", x_scale="jac")
+            x = sol.x
+            chi2 = np.sum(errors(x) ** 2, 1)
+            wt = np.where(robust, 1.0 / (1.0 + chi2 / self.cauchy_scale**2), 1.0)
+        poses = np.vstack([x0[:1], x.reshape(-1, 3)])
+        poses[:, 2] = _wrap(poses[:, 2])
+        return poses, wt
+
+
+def _sqrt_info(cov: FloatArray) -> FloatArray:
+    """``W`` (3, 3) with ``W^T W = cov^{-1}`` (eigen-decomposition of the symmetrised
+    covariance, eigenvalues floored at 1e-12 so a near-singular edge stays finite)."""
+    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
+    return (vec / np.sqrt(np.maximum(lam, 1e-12))).T
+
+
+# --------------------------------------------------------------------------- estimator
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopGraphResult:
+    """Output of :meth:`StopGraphPathEstimator.estimate`.
+
+    Attributes
+    ----------
+    trajectory : ndarray, shape (n, 4)
+        ``[t, x, y, yaw]`` of every acquisition, frame of the first pose (map.json's layout).
+    stop_poses : ndarray, shape (S, 3)
+        Pose of each stop's first acquisition, same frame.
+    stops : list of StopScan
+    edges : list of GraphEdge
+        The graph's edges (odometry and accepted registrations).
+    edge_weights : ndarray
+        Final Cauchy weight of each edge.
+    registrations : list of tuple (int, int, Registration)
+        Every registration tried (accepted or not), with the stops it joined.
+    """
+
+    trajectory: FloatArray
+    stop_poses: FloatArray
+    stops: list[StopScan]
+    edges: list[GraphEdge]
+    edge_weights: FloatArray
+    registrations: list[tuple[int, int, Registration]] = field(default_factory=list)
+
+
+class StopGraphPathEstimator:
+    """The path of a stop-and-turn robot from its echoes and odometry (see the module).
+
+    Parameters
+    ----------
+    antennas : array_like, shape (3, 2)
+        tx, rx1, rx2 in the robot frame (x forward, y left), m; tx is the turning centre.
+    config : StopGraphConfig
+    closure : TurnClosureConfig, optional
+        Turn closure settings; default: its own with the config's slip noise.
+    """
+
+    def __init__(
+        self,
+        antennas: npt.ArrayLike,
+        config: StopGraphConfig | None = None,
+        closure: TurnClosureConfig | None = None,
+    ) -> None:
+        ant = np.asarray(antennas, float)
+        if ant.shape != (3, 2) or not np.all(np.isfinite(ant)):
+            raise ValueError(f"antennas must be 3 finite (x, y) rows, got shape {ant.shape}")
+        self.antennas = ant
+        self.config = cfg = config or StopGraphConfig()
+        self.closer = EchoBearingTurnCloser(
+            ant[1:] - ant[0],
+            closure
+            or TurnClosureConfig(
+                slip_rotation=cfg.slip_rotation,
+                slip_floor=cfg.slip_floor[1],
+                min_links=cfg.closure_min_links,
+            ),
+        )
+        self.registration = ReflectorRegistration(cfg)
+
+    def odometry_edge(
+        self, log: ScanLog, a: StopScan, b: StopScan
+    ) -> tuple[FloatArray, FloatArray]:
+        """Relative pose of stop ``b``'s frame in stop ``a``'s (the next stop) by the
+        odometry, and its covariance: ``a``'s last in-stop pose (corrected heading, its
+        ``end_sigma``) composed with the drive's increments (``b.start``'s and those of
+        acquisitions between the stops), each with the recorder's slip model
+        (``s_t = slip_translation |d| + floor``, ``s_r = slip_rotation |dyaw| +
+        slip_heading_per_metre |d| + floor``), propagated to first order."""
+        cfg = self.config
+        pose = a.poses[-1].copy()
+        cov = np.diag([1e-8, 1e-8, a.end_sigma**2])
+        if not a.on_the_spot:
+            # the odometry's own in-stop translation noise
+            steps = a.end - a.start - 1
+            cov[:2, :2] += cfg.slip_floor[0] ** 2 * max(steps, 0) * np.eye(2)
+        for k in range(a.end, b.start + 1):
+            inc = log.odometry[k]
+            dist = float(np.hypot(inc[0], inc[1]))
+            s_t = cfg.slip_translation * dist + cfg.slip_floor[0]
+            s_r = (
+                cfg.slip_rotation * abs(inc[2])
+                + cfg.slip_heading_per_metre * dist
+                + cfg.slip_floor[1]
+            )
+            c, s = np.cos(pose[2]), np.sin(pose[2])
+            jx = np.array(
+                [[1, 0, -s * inc[0] - c * inc[1]], [0, 1, c * inc[0] - s * inc[1]], [0, 0, 1]]
+            )
+            ju = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+            cov = jx @ cov @ jx.T + ju @ np.diag([s_t**2, s_t**2, s_r**2]) @ ju.T
+            pose = compose_poses(pose[None], inc)[0]
+        pose[2] = float(_wrap(pose[2]))
+        return pose, cov
+
+    def estimate(self, log: ScanLog) -> StopGraphResult:
+        """Stop poses and the path of every acquisition of ``log`` (see the module)."""
+        cfg = self.config
+        if log.t.size == 0:
+            raise ValueError("no acquisitions to estimate a path from")
+        segs = segment_stops(log.odometry, cfg.drive_reset)
+        stops = [stop_scan(log, s, e, self.closer, cfg) for s, e in segs]
+        n = len(stops)
+        graph = StopPoseGraph(n, cfg.cauchy_scale)
+        init = np.zeros((n, 3))
+        regs: list[tuple[int, int, Registration]] = []
+        tried: set[tuple[int, int]] = set()
+        for i in range(n - 1):
+            z, cov = self.odometry_edge(log, stops[i], stops[i + 1])
+            graph.add(GraphEdge(i=i, j=i + 1, z=z, cov=cov, robust=False))
+            reg = self.registration.register_both(stops[i], stops[i + 1], z, cov)
+            regs.append((i, i + 1, reg))
+            tried.add((i, i + 1))
+            step = z
+            if reg.accepted:
+                graph.add(
+                    GraphEdge(i=i, j=i + 1, z=reg.pose, cov=reg.cov, robust=True, kind="scan")
+                )
+                step = reg.pose
+            init[i + 1] = compose_poses(init[i : i + 1], step)[0]
+        poses, wt = graph.solve(init)
+        loop_cov = np.diag(
+            [cfg.loop_window[0] ** 2, cfg.loop_window[0] ** 2, cfg.loop_window[1] ** 2]
+        )
+        for _ in range(cfg.loop_rounds):
+            added = 0
+            for i in range(n):
+                d = np.hypot(*(poses[i + 2 :, :2] - poses[i, :2]).T)
+                for j in (np.flatnonzero(d < cfg.loop_distance) + i + 2).tolist():
+                    if (i, j) in tried:
+                        continue
+                    tried.add((i, j))
+                    prior = relative_pose(poses[i], poses[j])
+                    reg = self.registration.register_both(stops[i], stops[j], prior, loop_cov)
+                    regs.append((i, j, reg))
+                    if reg.accepted:
+                        graph.add(
+                            GraphEdge(i=i, j=j, z=reg.pose, cov=reg.cov, robust=True, kind="loop")
+                        )
+                        added += 1
+            if added == 0:
+                break
+            poses, wt = graph.solve(poses)
+        traj = np.zeros((log.t.size, 4))
+        traj[:, 0] = log.t
+        for st, p in zip(stops, poses, strict=True):
+            traj[st.start : st.end, 1:] = _compose_many(p, st.poses)
+        traj[:, 3] = _wrap(traj[:, 3])
+        return StopGraphResult(
+            trajectory=traj,
+            stop_poses=poses,
+            stops=stops,
+            edges=list(graph.edges),
+            edge_weights=wt,
+            registrations=regs,
+        )
+
+
+def _compose_many(base: FloatArray, rel: FloatArray) -> FloatArray:
+    """Poses ``rel`` (n, 3) given in the frame of pose ``base`` (3,), in the outer frame."""
+    c, s = np.cos(base[2]), np.sin(base[2])
+    return np.column_stack(
+        [
+            base[0] + c * rel[:, 0] - s * rel[:, 1],
+            base[1] + s * rel[:, 0] + c * rel[:, 1],
+            base[2] + rel[:, 2],
+        ]
+    )
+
+
+def stop_graph_path(
+    log: ScanLog, antennas: npt.ArrayLike, config: StopGraphConfig | None = None
+) -> FloatArray:
+    """``[t, x, y, yaw]`` of every acquisition (first-pose frame): shorthand for
+    :meth:`StopGraphPathEstimator.estimate`'s trajectory."""
+    return StopGraphPathEstimator(antennas, config).estimate(log).trajectory
+
+
+__all__: Sequence[str] = (
+    "GraphEdge",
+    "ReflectorRegistration",
+    "Registration",
+    "ScanLog",
+    "StopGraphConfig",
+    "StopGraphPathEstimator",
+    "StopGraphResult",
+    "StopPoseGraph",
+    "StopScan",
+    "predicted_images",
+    "relative_pose",
+    "scan_front_end",
+    "segment_stops",
+    "stop_graph_path",
+    "stop_scan",
+)

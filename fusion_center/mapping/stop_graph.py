@@ -139,21 +139,9 @@ def scan_front_end(
         max_echoes=max_echoes,
         warmup=warmup,
     )
-    grouper = KalmanEchoGrouper()
     ts: list[float] = []
     odos: list[FloatArray] = []
     pairs: list[FloatArray] = []
-    groups: list[npt.NDArray[np.int64]] = []
-
-    def take(echo_sets: list) -> None:
-        for echoes in echo_sets:
-            k = len(pairs)
-            z = pair_echoes(echoes, pair_gate)
-            if np.hypot(odos[k][0], odos[k][1]) > drive_reset:
-                grouper.reset()
-            pairs.append(z)
-            groups.append(np.asarray(grouper.step(z), np.int64))
-
     for t, h, odo in frames:
         if odo is None:
             raise ValueError(f"acquisition at t = {t} s has no odometry (the stop graph needs it)")
@@ -162,11 +150,46 @@ def scan_front_end(
             raise ValueError(f"acquisition at t = {t} s: odometry must be 3 finite numbers")
         ts.append(float(t))
         odos.append(o if ts[1:] else np.zeros(3))
-        take(ext.push(np.asarray(h)))
-    take(ext.flush())
-    return ScanLog(
-        t=np.array(ts, float), odometry=np.array(odos).reshape(-1, 3), pairs=pairs, groups=groups
-    )
+        pairs += [pair_echoes(e, pair_gate) for e in ext.push(np.asarray(h))]
+    pairs += [pair_echoes(e, pair_gate) for e in ext.flush()]
+    return scan_log_from_pairs(ts, np.array(odos).reshape(-1, 3), pairs, drive_reset)
+
+
+def scan_log_from_pairs(
+    t: npt.ArrayLike,
+    odometry: npt.ArrayLike,
+    pairs: Sequence[npt.ArrayLike],
+    drive_reset: float = 0.1,
+) -> ScanLog:
+    """A :class:`ScanLog` from echo pairs: the Kalman echo tracks of
+    :class:`~fusion_center.mapping.grouping.KalmanEchoGrouper` (restarted when the odometry
+    steps more than ``drive_reset``, m, as the mapper does), one id per pair.
+
+    Raises
+    ------
+    ValueError
+        Lengths that differ, odometry not (n, 3) and finite, a pair array not (m, 2).
+    """
+    ts = np.asarray(t, float).reshape(-1)
+    odo = np.asarray(odometry, float)
+    if odo.shape != (ts.size, 3) or not np.all(np.isfinite(odo)):
+        raise ValueError(f"odometry must be {ts.size} finite (dx, dy, dyaw) rows")
+    if len(pairs) != ts.size:
+        raise ValueError(f"{len(pairs)} pair arrays for {ts.size} acquisitions")
+    grouper = KalmanEchoGrouper()
+    zs: list[FloatArray] = []
+    groups: list[npt.NDArray[np.int64]] = []
+    for k, p in enumerate(pairs):  # one Kalman step per acquisition
+        z = np.asarray(p, float)
+        if z.size == 0:
+            z = np.zeros((0, 2))
+        if z.ndim != 2 or z.shape[1] != 2:
+            raise ValueError(f"pairs of acquisition {k} must have shape (m, 2), got {z.shape}")
+        if np.hypot(odo[k, 0], odo[k, 1]) > drive_reset:
+            grouper.reset()
+        zs.append(z)
+        groups.append(np.asarray(grouper.step(z), np.int64))
+    return ScanLog(t=ts, odometry=odo, pairs=zs, groups=groups)
 
 
 def segment_stops(odometry: npt.ArrayLike, drive_reset: float = 0.1) -> list[tuple[int, int]]:
@@ -810,7 +833,9 @@ class StopPoseGraph:
 
     def solve(self, initial: FloatArray, reweight: int = 4) -> tuple[FloatArray, FloatArray]:
         """Stop poses (n, 3) from ``initial`` (n, 3; row 0 is kept), and the final Cauchy
-        weight of every edge (1 for odometry edges)."""
+        weight of every edge (1 for odometry edges). The first weights come from
+        ``initial``, which should be consistent with the trusted edges (the estimator's
+        chain of consecutive registrations, or the previous solve)."""
         x0 = np.asarray(initial, float).reshape(self.n, 3)
         if self.n == 1 or not self.edges:
             return x0.copy(), np.ones(len(self.edges))
@@ -845,6 +870,11 @@ class StopPoseGraph:
             return (np.sqrt(wt)[:, None] * errors(x)).ravel()
 
         x = x0[1:].ravel()
+        # the first weights from the initial estimate (the chain of consecutive matches):
+        # starting from weight 1 would let a wrong loop closure bend the first solve, and
+        # then every edge it bent looks as wrong as the loop closure itself
+        chi2 = np.sum(errors(x) ** 2, 1)
+        wt = np.where(robust, 1.0 / (1.0 + chi2 / self.cauchy_scale**2), 1.0)
         for _ in range(max(reweight, 1)):
             sol = least_squares(fun, x, jac_sparsity=sparsity, method="trf", x_scale="jac")
             x = sol.x
@@ -1057,6 +1087,7 @@ __all__: Sequence[str] = (
     "predicted_images",
     "relative_pose",
     "scan_front_end",
+    "scan_log_from_pairs",
     "segment_stops",
     "stop_graph_path",
     "stop_scan",

@@ -1,0 +1,222 @@
+"""Stop graph: the path from stop-to-stop reflector registration and a pose graph (issue 8)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion_center.mapping.stop_graph import (
+    GraphEdge,
+    ReflectorRegistration,
+    ScanLog,
+    StopGraphConfig,
+    StopGraphPathEstimator,
+    StopPoseGraph,
+    StopScan,
+    predicted_images,
+    relative_pose,
+    scan_front_end,
+    scan_log_from_pairs,
+    segment_stops,
+)
+from fusion_center.mapping.synthetic import echo_pairs, rectangle_room, stop_and_turn_poses
+from sim_nodes.robot_record import odometry_increments
+
+# the robot recorder's array: Tx at the turning centre, a 1 m baseline
+ANTENNAS = np.array([[0.0, 0.0], [0.0, 0.5], [0.0, -0.5]])
+STOPS = np.array([[1.6, 1.4], [2.9, 1.7], [4.2, 2.6], [3.6, 3.7], [2.0, 3.3]])
+
+
+def _recording(seed: int) -> tuple[ScanLog, np.ndarray]:
+    """A stop-and-turn run in a 6 x 5 m room (four walls, four corners, two point
+    scatterers): 357-degree turns in 3-degree steps at five stops, echo pairs with 5 mm of
+    noise, the recorder's odometry slip. Returns the scan log and the true poses (world)."""
+    rng = np.random.default_rng(seed)
+    poses = stop_and_turn_poses(STOPS, 120, np.radians(3.0))
+    poses[:, 2] += 0.3
+    odo = odometry_increments(poses, rng)
+    room = rectangle_room()
+    pairs = [echo_pairs(room, p, ANTENNAS, rng, sigma=0.005, beam=np.radians(50.0)) for p in poses]
+    t = np.arange(len(poses)) * 0.05
+    return scan_log_from_pairs(t, odo, pairs), poses
+
+
+def _in_first_frame(poses: np.ndarray) -> np.ndarray:
+    return np.array([relative_pose(poses[0], p) for p in poses])
+
+
+def _dead_reckoning(odo: np.ndarray) -> np.ndarray:
+    out = np.zeros((len(odo), 3))
+    for k in range(1, len(odo)):
+        c, s = np.cos(out[k - 1, 2]), np.sin(out[k - 1, 2])
+        d = odo[k]
+        out[k] = out[k - 1] + [c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]]
+    return out
+
+
+@pytest.fixture(scope="module")
+def run() -> tuple[ScanLog, np.ndarray]:
+    return _recording(3)
+
+
+def test_segment_stops_splits_at_drives(run: tuple[ScanLog, np.ndarray]) -> None:
+    log, _ = run
+    segs = segment_stops(log.odometry)
+    assert segs == [(120 * i, 120 * (i + 1)) for i in range(len(STOPS))]
+
+
+def test_registration_recovers_the_relative_pose(run: tuple[ScanLog, np.ndarray]) -> None:
+    """Stop 1 in stop 0's frame from their reflectors, from the odometry's prior, within
+    3 cm and 0.5 degrees (the echoes' 5 mm noise at 1-9 m of image distance); the prior
+    itself is off by more."""
+    log, poses = run
+    est = StopGraphPathEstimator(ANTENNAS)
+    segs = segment_stops(log.odometry)
+    from fusion_center.mapping.stop_graph import stop_scan
+
+    a, b = (stop_scan(log, s, e, est.closer, est.config) for s, e in segs[:2])
+    assert len(a.images) >= 3 and len(b.images) >= 3
+    prior, cov = est.odometry_edge(log, a, b)
+    truth = relative_pose(poses[segs[0][0]], poses[segs[1][0]])
+    # a prior far enough off that an identity registration would fail the tolerance
+    prior = prior + np.array([0.15, -0.1, np.radians(3.0)])
+    cov = cov + np.diag([0.1**2, 0.1**2, np.radians(3.0) ** 2])
+    reg = est.registration.register_both(a, b, prior, cov)
+    assert reg.accepted, reg.reason
+    err = reg.pose - truth
+    assert np.hypot(err[0], err[1]) < 0.03
+    assert abs(np.degrees(err[2])) < 0.5
+    assert reg.explained > 0.5
+    assert np.all(np.linalg.eigvalsh(reg.cov) > 0)
+
+
+def test_graph_recovers_the_path(run: tuple[ScanLog, np.ndarray]) -> None:
+    """Every acquisition within 5 cm and 1 degree (RMSE), several times better than
+    dead reckoning; registrations between consecutive stops and at least one loop closure."""
+    log, poses = run
+    res = StopGraphPathEstimator(ANTENNAS).estimate(log)
+    truth = _in_first_frame(poses)
+    traj = res.trajectory
+    assert traj.shape == (len(poses), 4)
+    np.testing.assert_array_equal(traj[:, 0], log.t)
+    pos = np.hypot(*(traj[:, 1:3] - truth[:, :2]).T)
+    yaw = np.degrees((traj[:, 3] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+    rmse, yaw_rmse = np.sqrt(np.mean(pos**2)), np.sqrt(np.mean(yaw**2))
+    dr = _dead_reckoning(log.odometry)
+    dr_rmse = np.sqrt(np.mean(np.sum((dr[:, :2] - truth[:, :2]) ** 2, 1)))
+    assert rmse < 0.05, (rmse, dr_rmse)
+    assert yaw_rmse < 1.0
+    assert rmse < dr_rmse / 2
+    kinds = [e.kind for e in res.edges]
+    assert kinds.count("scan") >= 3
+    assert kinds.count("loop") >= 1
+
+
+def _scatterers(points: np.ndarray, pose: np.ndarray) -> StopScan:
+    """A stop at ``pose`` (world) whose reflectors are point scatterers at ``points``
+    (world): their images ``2 (p - t)`` in the stop's axes, 20 pairs each, 5 mm scatter."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    d = 2.0 * (points - pose[:2])
+    img = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+    n = len(img)
+    return StopScan(
+        start=0,
+        end=1,
+        poses=np.zeros((1, 3)),
+        end_sigma=0.0,
+        closed=True,
+        on_the_spot=True,
+        images=img,
+        weights=np.full(n, 20.0),
+        image_sigma=np.full(n, 0.005),
+    )
+
+
+def test_a_symmetric_scene_is_refused_as_ambiguous() -> None:
+    """Sixteen scatterers on a circle around both stops: B turned by one period (22.5
+    degrees) explains them as well as B at the truth, and the prior lies between the two:
+    refused as ambiguous. The same with the points at random bearings is accepted at the
+    true pose."""
+    reg = ReflectorRegistration()
+    truth = np.array([0.3, -0.2, 0.0])
+    prior = truth + np.array([0.02, 0.01, np.radians(11.25)])
+    cov = np.diag([0.1**2, 0.1**2, np.radians(10.0) ** 2])
+    ang = np.radians(22.5) * np.arange(16)
+    ring = np.column_stack([2.5 * np.cos(ang), 2.5 * np.sin(ang)]) + truth[:2]
+    amb = reg.register_both(_scatterers(ring, np.zeros(3)), _scatterers(ring, truth), prior, cov)
+    assert not amb.accepted
+    assert "ambiguous" in amb.reason
+    rng = np.random.default_rng(5)
+    ang = rng.uniform(0, 2 * np.pi, 16)
+    pts = np.column_stack([2.5 * np.cos(ang), 2.5 * np.sin(ang)]) + truth[:2]
+    ok = reg.register_both(_scatterers(pts, np.zeros(3)), _scatterers(pts, truth), prior, cov)
+    assert ok.accepted, ok.reason
+    assert np.hypot(*(ok.pose[:2] - truth[:2])) < 0.01
+    assert abs(ok.pose[2] - truth[2]) < np.radians(0.1)
+
+
+def test_predicted_images_follow_fig19() -> None:
+    """A wall seen from A at 2 m along +x, from B 0.5 m closer and turned 90 degrees: its
+    image is 3 m away along B's -y; a point at (2, 1) has the image 2 (p - t) in B's axes."""
+    a_images = np.array([[4.0, 0.0], [4.0, 2.0]])
+    b = np.array([0.5, 0.0, np.pi / 2])
+    pred = predicted_images(a_images, b)[0]
+    np.testing.assert_allclose(pred[0], [0.0, -3.0], atol=1e-12)
+    p_rel = 2.0 * (np.array([2.0, 1.0]) - b[:2])
+    np.testing.assert_allclose(pred[3], [p_rel[1], -p_rel[0]], atol=1e-12)
+
+
+def test_pose_graph_keeps_the_path_against_a_wrong_match() -> None:
+    """Four stops on a square; noisy odometry edges, exact registrations between
+    consecutive stops, and one wrong loop closure 0.5 m off: the robust graph keeps every
+    stop within 2 cm (a plain least-squares solve would be bent by decimetres)."""
+    rng = np.random.default_rng(2)
+    truth = np.array([[0, 0, 0], [2, 0, np.pi / 2], [2, 2, np.pi], [0, 2, -np.pi / 2]], float)
+    graph = StopPoseGraph(4)
+    odo_cov = np.diag([0.05**2, 0.05**2, np.radians(2.0) ** 2])
+    reg_cov = np.diag([0.01**2, 0.01**2, np.radians(0.2) ** 2])
+    for i in range(3):
+        z = relative_pose(truth[i], truth[i + 1])
+        noisy = z + rng.normal(0, np.sqrt(np.diag(odo_cov)))
+        graph.add(GraphEdge(i=i, j=i + 1, z=noisy, cov=odo_cov, robust=False))
+        graph.add(GraphEdge(i=i, j=i + 1, z=z, cov=reg_cov, robust=True, kind="scan"))
+    wrong = relative_pose(truth[0], truth[3]) + np.array([0.5, 0.0, 0.0])
+    graph.add(GraphEdge(i=0, j=3, z=wrong, cov=reg_cov, robust=True, kind="loop"))
+    # the initial estimate chains the consecutive matches, as the estimator does
+    init = truth.copy()
+    poses, weights = graph.solve(init)
+    assert np.max(np.hypot(*(poses[:, :2] - truth[:, :2]).T)) < 0.02
+    assert weights[-1] < 0.01
+
+
+def test_bad_input_gives_one_line_value_errors() -> None:
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.fine_sigma must be > 0"):
+        StopGraphConfig(fine_sigma=-1.0)
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.window must be two numbers"):
+        StopGraphConfig(window=(0.5,))
+    with pytest.raises(ValueError, match=r"^antennas must be 3 finite"):
+        StopGraphPathEstimator(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"^odometry must be 2 finite"):
+        scan_log_from_pairs([0.0, 1.0], np.zeros((2, 2)), [np.zeros((0, 2))] * 2)
+    with pytest.raises(ValueError, match=r"^pairs of acquisition 1 must have shape"):
+        scan_log_from_pairs([0.0, 1.0], np.zeros((2, 3)), [np.zeros((0, 2)), np.zeros(3)])
+    with pytest.raises(ValueError, match=r"^no acquisitions"):
+        StopGraphPathEstimator(ANTENNAS).estimate(scan_log_from_pairs([], np.zeros((0, 3)), []))
+    frames = [(0.0, np.zeros((2, 64), np.float32), None)]
+    with pytest.raises(ValueError, match=r"has no odometry"):
+        scan_front_end(frames, fs=1e9, t0=0.0, bandwidth=5e8)
+    with pytest.raises(ValueError, match=r"^a pose graph needs at least one stop"):
+        StopPoseGraph(0)
+    for msg in (
+        str(_catch(lambda: StopGraphConfig(min_matched=0))),
+        str(_catch(lambda: StopGraphConfig(min_explained=2.0))),
+    ):
+        assert "\n" not in msg and msg
+
+
+def _catch(f: object) -> Exception:
+    try:
+        f()  # type: ignore[operator]
+    except ValueError as exc:
+        return exc
+    raise AssertionError("no ValueError")

@@ -243,6 +243,15 @@ class StopScan:
     weights: FloatArray
     image_sigma: FloatArray
 
+    @property
+    def heading_rms(self) -> float:
+        """RMS over the turn of the in-stop heading's standard deviation, rad: a random walk
+        that reaches ``end_sigma`` at the end (``end_sigma / sqrt(2)``), or, when the
+        closure tied the end to the start, a bridge (``end_sigma / sqrt(6)``). A reflector
+        is seen somewhere in the turn, so its image shares this error; the errors of one
+        stop's reflectors are correlated, which the registration's covariance must keep."""
+        return float(self.end_sigma / np.sqrt(6.0 if self.closed else 2.0))
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StopGraphConfig:
@@ -278,6 +287,9 @@ class StopGraphConfig:
         Largest half-width of the search ``(m, rad)``; the prior's 3 sigma otherwise.
     min_window : tuple of float
         Smallest half-width of the search ``(m, rad)``.
+    max_coarse_cells : int
+        Coarse cells per axis on each side of the prior at most: a wider search coarsens
+        the steps (and widens the coarse scale with them) instead.
     min_matched : int
         Distinct reflectors of B a registration must explain.
     min_explained : float
@@ -323,6 +335,7 @@ class StopGraphConfig:
     coarse_step: tuple[float, float] = (0.06, np.radians(1.5))
     fine_step: tuple[float, float] = (0.015, np.radians(0.25))
     window: tuple[float, float] = (0.8, np.radians(25.0))
+    max_coarse_cells: int = 8
     min_window: tuple[float, float] = (0.12, np.radians(3.0))
     min_matched: int = 2
     min_explained: float = 0.3
@@ -359,7 +372,13 @@ class StopGraphConfig:
             v = getattr(self, name)
             if len(v) != 2 or not all(np.isfinite(x) and x > 0 for x in v):
                 raise ValueError(f"StopGraphConfig.{name} must be two numbers > 0, got {v!r}")
-        for name in ("min_reflector_pairs", "min_matched", "loop_rounds", "closure_min_links"):
+        for name in (
+            "min_reflector_pairs",
+            "min_matched",
+            "loop_rounds",
+            "closure_min_links",
+            "max_coarse_cells",
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"StopGraphConfig.{name} must be an integer >= 1, got {v!r}")
@@ -579,24 +598,30 @@ class ReflectorRegistration:
         self.config = config or StopGraphConfig()
 
     def _scores(
-        self, poses: FloatArray, a: StopScan, b: StopScan, sigma: float
+        self, poses: FloatArray, a: StopScan, b: StopScan, sigma: float, heading: float = 0.0
     ) -> tuple[FloatArray, FloatArray]:
         """Log-likelihood (n,) and the best hypothesis' squared distance (n, Rb)."""
         pred = predicted_images(a.images, poses)  # (n, H, 2)
         d2 = np.sum((b.images[None, :, None, :] - pred[:, None]) ** 2, -1)  # (n, Rb, H)
         d2 = np.where(np.isnan(d2), np.inf, d2)
         best = d2.min(-1)
-        sig2 = self._sigma(b, sigma) ** 2
+        sig2 = self._sigma(b, sigma, a, heading) ** 2
         lik = np.exp(-0.5 * d2 / sig2[None, :, None]).sum(-1)
         w = np.sqrt(b.weights)
         ll = np.log(np.exp(-2.0) + lik) @ w
         return ll, best
 
-    def _sigma(self, b: StopScan, base: float) -> FloatArray:
+    def _sigma(
+        self, b: StopScan, base: float, a: StopScan | None = None, heading: float = 0.0
+    ) -> FloatArray:
         """Image mismatch scale of each of B's reflectors, m: ``base``, its own scatter and
-        its distance times ``heading_sigma``, in quadrature."""
+        its distance times the heading noise (``heading_sigma``, both stops'
+        :attr:`StopScan.heading_rms` and ``heading``, rad), in quadrature."""
         rho = np.linalg.norm(b.images, axis=1)
-        return np.sqrt(base**2 + b.image_sigma**2 + (rho * self.config.heading_sigma) ** 2)
+        hs2 = self.config.heading_sigma**2 + b.heading_rms**2 + heading**2
+        if a is not None:
+            hs2 += a.heading_rms**2
+        return np.sqrt(base**2 + b.image_sigma**2 + rho**2 * hs2)
 
     def register(
         self, a: StopScan, b: StopScan, prior: npt.ArrayLike, prior_cov: npt.ArrayLike
@@ -627,11 +652,18 @@ class ReflectorRegistration:
             d[:, 2] = _wrap(d[:, 2])
             return -0.5 * np.einsum("ni,ij,nj->n", d, info, d)
 
-        cs, cy = cfg.coarse_step
+        # a wide prior (a loop closure across a stretch held by odometry) coarsens the grid
+        # rather than growing it: at most 2 max_coarse_cells + 1 cells per axis, the
+        # match's scale widened to the cells
+        m_c = cfg.max_coarse_cells
+        cs = max(cfg.coarse_step[0], float(half_xy.max()) / m_c)
+        cy = max(cfg.coarse_step[1], half_yaw / m_c)
+        c_sigma = float(np.hypot(cfg.coarse_sigma, cs - cfg.coarse_step[0]))
+        c_heading = max(cy - cfg.coarse_step[1], 0.0)
         coarse = grid(prior, [axis(half_xy[0], cs), axis(half_xy[1], cs), axis(half_yaw, cy)])
         score = np.concatenate(
             [
-                self._scores(chunk, a, b, cfg.coarse_sigma)[0]
+                self._scores(chunk, a, b, c_sigma, c_heading)[0]
                 for chunk in np.array_split(coarse, max(1, coarse.shape[0] // 4000))
             ]
         ) + log_prior(coarse)
@@ -714,7 +746,7 @@ class ReflectorRegistration:
         Jacobian (3 parameters). Returns the pose, its covariance (without the prior, with
         the floor) and the explained mask over B's reflectors."""
         cfg = self.config
-        sig = self._sigma(b, cfg.fine_sigma)
+        sig = self._sigma(b, cfg.fine_sigma, a)
         gate = cfg.match_gate * sig
         w = np.sqrt(b.weights)
         q = pose.copy()
@@ -764,7 +796,10 @@ class ReflectorRegistration:
         floor = np.array(
             [cfg.edge_sigma_floor[0], cfg.edge_sigma_floor[0], cfg.edge_sigma_floor[1]]
         )
-        cov = cov + np.diag(floor**2)
+        # the stops' in-stop heading errors are common to all their reflectors: they do not
+        # average out over the reflectors as the normal matrix assumes
+        hs = a.heading_rms**2 + b.heading_rms**2
+        cov = cov + np.diag(floor**2) + np.diag([0.0, 0.0, hs])
         q[2] = float(_wrap(q[2]))
         return q, cov, mask
 
@@ -883,6 +918,58 @@ class StopPoseGraph:
         poses = np.vstack([x0[:1], x.reshape(-1, 3)])
         poses[:, 2] = _wrap(poses[:, 2])
         return poses, wt
+
+    def covariance(self, poses: FloatArray, weights: FloatArray) -> FloatArray:
+        """Covariance (3(n-1), 3(n-1)) of stops 1..n-1 at the solution ``poses`` with the
+        edge ``weights`` of :meth:`solve`: the inverse of the Gauss-Newton normal matrix
+        (Jacobian by finite differences; stop 0 fixed). Dense: meant for tens to a few
+        hundred stops."""
+        p = np.asarray(poses, float).reshape(self.n, 3)
+        if self.n == 1 or not self.edges:
+            return np.eye(3 * (self.n - 1))
+        ei = np.array([e.i for e in self.edges])
+        ej = np.array([e.j for e in self.edges])
+        z = np.array([e.z for e in self.edges])
+        sw = np.sqrt(np.asarray(weights, float))[:, None, None]
+        sqi = sw * np.array([_sqrt_info(e.cov) for e in self.edges])
+
+        def res(q: FloatArray) -> FloatArray:
+            pi, pj = q[ei], q[ej]
+            c, s = np.cos(pi[:, 2]), np.sin(pi[:, 2])
+            dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
+            d = np.column_stack([c * dx + s * dy, -s * dx + c * dy, pj[:, 2] - pi[:, 2]]) - z
+            d[:, 2] = _wrap(d[:, 2])
+            return np.einsum("mij,mj->mi", sqi, d).ravel()
+
+        r0 = res(p)
+        jac = np.empty((r0.size, 3 * (self.n - 1)))
+        for k in range(3 * (self.n - 1)):  # one column per variable
+            q = p.copy()
+            q[1 + k // 3, k % 3] += 1e-6
+            jac[:, k] = (res(q) - r0) / 1e-6
+        info = jac.T @ jac
+        return np.linalg.solve(info + 1e-12 * np.eye(info.shape[0]), np.eye(info.shape[0]))
+
+
+def relative_covariance(poses: FloatArray, cov: FloatArray, i: int, j: int) -> FloatArray:
+    """Covariance (3, 3) of stop ``j``'s pose in stop ``i``'s frame from the joint
+    covariance ``cov`` of stops 1..n-1 (:meth:`StopPoseGraph.covariance`; stop 0 fixed),
+    propagated to first order (numerical Jacobian of :func:`relative_pose`)."""
+    idx = [k for k in (i, j) if k > 0]
+    sel = np.concatenate([3 * (k - 1) + np.arange(3) for k in idx]) if idx else np.zeros(0, int)
+    if sel.size == 0:
+        return np.zeros((3, 3))
+    base = relative_pose(poses[i], poses[j])
+    cols = []
+    for k in idx:
+        for c in range(3):
+            q = poses.copy()
+            q[k, c] += 1e-6
+            d = relative_pose(q[i], q[j]) - base
+            d[2] = float(_wrap(d[2]))
+            cols.append(d / 1e-6)
+    jac = np.array(cols).T
+    return jac @ cov[np.ix_(sel, sel)] @ jac.T
 
 
 def _sqrt_info(cov: FloatArray) -> FloatArray:
@@ -1022,6 +1109,10 @@ class StopGraphPathEstimator:
         )
         for _ in range(cfg.loop_rounds):
             added = 0
+            # the search spans the current estimate's own uncertainty (the graph's marginal
+            # of the relative pose), at least ``loop_window``: a fixed narrow window around
+            # a stretch the graph holds only by odometry found wrong local matches
+            joint = graph.covariance(poses, wt)
             for i in range(n):
                 d = np.hypot(*(poses[i + 2 :, :2] - poses[i, :2]).T)
                 for j in (np.flatnonzero(d < cfg.loop_distance) + i + 2).tolist():
@@ -1029,7 +1120,8 @@ class StopGraphPathEstimator:
                         continue
                     tried.add((i, j))
                     prior = relative_pose(poses[i], poses[j])
-                    reg = self.registration.register_both(stops[i], stops[j], prior, loop_cov)
+                    cov = loop_cov + relative_covariance(poses, joint, i, j)
+                    reg = self.registration.register_both(stops[i], stops[j], prior, cov)
                     regs.append((i, j, reg))
                     if reg.accepted:
                         graph.add(
@@ -1085,6 +1177,7 @@ __all__: Sequence[str] = (
     "StopPoseGraph",
     "StopScan",
     "predicted_images",
+    "relative_covariance",
     "relative_pose",
     "scan_front_end",
     "scan_log_from_pairs",

@@ -273,6 +273,9 @@ class StopGraphConfig:
         Pairs a reflector needs.
     max_reflector_scatter : float
         Largest robust scatter of a reflector's pair images, m (beyond: clutter chained).
+    scatter_per_metre : float
+        Added to ``max_reflector_scatter`` per metre of image distance (a far reflector's
+        pair images scatter with the bearing noise times the distance).
     merge_distance : float
         Reflectors of one stop whose images lie closer than this are one (the closure's
         complete linkage splits a reflector whose bearing drifts over the turn), m.
@@ -328,6 +331,7 @@ class StopGraphConfig:
     slip_floor: tuple[float, float] = (0.002, np.radians(0.1))
     min_reflector_pairs: int = 4
     max_reflector_scatter: float = 0.3
+    scatter_per_metre: float = 0.0
     merge_distance: float = 0.15
     heading_sigma: float = np.radians(0.5)
     coarse_sigma: float = 0.12
@@ -476,7 +480,8 @@ def stop_scan(
     med = np.column_stack([_group_median(img[:, j], label, nr) for j in range(2)])
     dev = np.linalg.norm(img - med[label], axis=1)
     scatter = 1.4826 * _group_median(dev, label, nr) / np.sqrt(2.0)
-    keep = (cnt >= cfg.min_reflector_pairs) & (scatter <= cfg.max_reflector_scatter)
+    limit = cfg.max_reflector_scatter + cfg.scatter_per_metre * np.hypot(med[:, 0], med[:, 1])
+    keep = (cnt >= cfg.min_reflector_pairs) & (scatter <= limit)
     med, cnt, scatter = _merge_reflectors(med[keep], cnt[keep], scatter[keep], cfg.merge_distance)
     return StopScan(
         start=start,

@@ -1,0 +1,664 @@
+"""The map of a robot's echoes along a known path (batch mapping at fixed poses).
+
+Given every acquisition's pose (a path from another estimator, e.g. stop-to-stop scan
+registration), the landmarks are estimated directly, without a filter:
+
+1. every echo pair ``(r1, r2)`` is inverted in the array frame (Fig. 19 / eq. (11) of the
+   CoLOR chapter, :func:`~fusion_center.mapping.models.invert_image` and
+   :func:`~fusion_center.mapping.models.invert_point`) and moved into the world frame; an echo
+   group of the measurement-space association (:mod:`fusion_center.mapping.grouping`, one
+   track within one stop) gives one robust mean image point ``T'`` and point ``p``;
+2. each group is a wall hypothesis (the perpendicular bisector of ``tx`` and ``T'``, normal
+   along ``T' - tx``) and a point-like one (a corner at ``(tx + T') / 2`` or a point at
+   ``p``). A turn on the spot cannot tell them apart; a second stop can: a wall's
+   hypotheses from two stops lie on one line, a corner's or edge's at one position. A group
+   takes the kind that stays consistent with groups from more other stops;
+3. groups of one kind are clustered greedily (most pairs first) into landmarks; each
+   landmark is fitted to all its echo pairs by iteratively reweighted Gauss-Newton with a
+   Cauchy loss (:meth:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother.fit_alone`),
+   every group is re-associated with the landmark whose predicted echoes explain it best
+   (gated per pair), landmarks on the same line or spot are merged
+   (:func:`~fusion_center.mapping.smoothing.merge_duplicates`), and this is repeated;
+4. optionally the path is refined: every stop (a run of acquisitions between drives) gets
+   one rigid correction ``(dx, dy, dyaw)`` about its centre, fitted to its echoes against the
+   current landmarks with a Gaussian prior of the path's expected error (alternated with
+   step 3; the first stop is held: it defines the frame);
+5. the landmarks with enough pairs from at least two stops become a
+   :class:`~fusion_center.mapping.features.SlamMap`
+   (:func:`~fusion_center.mapping.features.build_map`).
+
+The clustering by cross-stop consistency and the per-stop rigid refinement go beyond the
+chapter (a batch relative of its Section 6 mapping; the refinement is a block-coordinate
+bundle adjustment, cf. Triggs et al. 2000, "Bundle adjustment - a modern synthesis").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from fusion_center.mapping.features import LandmarkSet, SlamMap, build_map
+from fusion_center.mapping.models import (
+    CORNER,
+    POINT,
+    WALL,
+    invert_image,
+    invert_point,
+    wall_tangent,
+)
+from fusion_center.mapping.smoothing import (
+    LeastSquaresPathMapSmoother,
+    SmootherConfig,
+    merge_duplicates,
+)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FixedPathConfig:
+    """Parameters of :func:`map_fixed_path` (SI units: m, rad).
+
+    Attributes
+    ----------
+    range_sigma : float
+        Standard deviation of one bistatic range in the fit, m.
+    loss_scale : float
+        Residual, in ``range_sigma``, beyond which the Cauchy loss discounts an echo.
+    min_group_pairs : int
+        Pairs an echo group needs to found or join a landmark hypothesis (the mapper's
+        ``MapperConfig.confirm``; 1 uses every pair, e.g. for coarse turning steps).
+    wall_gate, wall_angle : float
+        Two groups' wall hypotheses are consistent when each one's foot point lies within
+        ``wall_gate`` of the other's line and their normals are within ``wall_angle``.
+    point_gate : float
+        Two groups' point-like hypotheses are consistent within this distance.
+    assoc_gate : float
+        A pair is explained by a landmark only if both its ranges are within this of the
+        landmark's predicted echoes, m.
+    assoc_gate_start : float
+        The gate of the first round; it shrinks geometrically to ``assoc_gate`` in the last
+        (a wider first gate lets the path refinement pull in stops that are further off).
+    fov : float
+        Half-angle around the boresight within which a landmark echoes.
+    min_pairs, min_stops : int
+        Support a landmark needs to be mapped: associated pairs, and distinct stops.
+    rounds : int
+        Association and fit rounds.
+    drive_distance : float
+        A step of the path longer than this starts a new stop, m.
+    merge_dist, merge_angle, merge_point_dist : float
+        Between rounds, walls within ``merge_dist`` and ``merge_angle`` and point-like
+        landmarks within ``merge_point_dist`` are merged.
+    refine_path : bool
+        Fit one rigid correction per stop (step 4 of the module docstring).
+    path_sigma : tuple of float
+        Prior standard deviation of a stop's correction: (m per axis, rad).
+    extent_quantile : float
+        A wall's extent spans these quantiles of its specular points.
+    overlap_dist, overlap_angle, extend : float
+        :func:`~fusion_center.mapping.features.build_map`'s merging of overlapping walls and
+        longest wall extension.
+    """
+
+    range_sigma: float = 0.02
+    loss_scale: float = 3.0
+    min_group_pairs: int = 3
+    wall_gate: float = 0.15
+    wall_angle: float = np.radians(5.0)
+    point_gate: float = 0.15
+    assoc_gate: float = 0.15
+    assoc_gate_start: float = 0.15
+    fov: float = np.radians(60.0)
+    min_pairs: int = 8
+    min_stops: int = 2
+    rounds: int = 4
+    drive_distance: float = 0.1
+    merge_dist: float = 0.1
+    merge_angle: float = np.radians(5.0)
+    merge_point_dist: float = 0.1
+    refine_path: bool = False
+    path_sigma: tuple[float, float] = (0.05, np.radians(1.0))
+    extent_quantile: float = 0.05
+    overlap_dist: float = 0.3
+    overlap_angle: float = np.radians(12.0)
+    extend: float = 1.0
+
+    def __post_init__(self) -> None:
+        positive = {
+            "range_sigma": self.range_sigma,
+            "loss_scale": self.loss_scale,
+            "wall_gate": self.wall_gate,
+            "wall_angle": self.wall_angle,
+            "point_gate": self.point_gate,
+            "assoc_gate": self.assoc_gate,
+            "assoc_gate_start": self.assoc_gate_start,
+            "fov": self.fov,
+            "drive_distance": self.drive_distance,
+        }
+        for name, v in positive.items():
+            if not (np.isfinite(v) and v > 0.0):
+                raise ValueError(f"FixedPathConfig.{name} must be > 0, got {v!r}")
+        for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"FixedPathConfig.{name} must be an integer >= 1, got {v!r}")
+        if len(self.path_sigma) != 2 or not all(
+            np.isfinite(s) and s > 0.0 for s in self.path_sigma
+        ):
+            raise ValueError(
+                f"FixedPathConfig.path_sigma must be two values > 0, got {self.path_sigma!r}"
+            )
+        if not 0.0 <= self.extent_quantile < 0.5:
+            raise ValueError(
+                f"FixedPathConfig.extent_quantile must be in [0, 0.5), got {self.extent_quantile!r}"
+            )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FixedPathMap:
+    """Result of :func:`map_fixed_path`.
+
+    Attributes
+    ----------
+    map : SlamMap
+        Walls, corners and points, in the frame of the path (m).
+    poses : ndarray, shape (n, 3)
+        The path the map was built at (the refined one with ``refine_path``), m and rad.
+    kinds, states, pairs, stops : ndarray
+        Every landmark kept after the last round (before the support rule): kind, state
+        (``(alpha, d)`` of a wall, ``(x, y)`` otherwise), associated pairs and distinct stops.
+    stop_corrections : ndarray, shape (s, 3)
+        Rigid correction of every stop (zeros without ``refine_path``).
+    """
+
+    map: SlamMap
+    poses: FloatArray
+    kinds: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    states: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    pairs: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stops: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stop_corrections: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+def _world_array(poses: FloatArray, antennas: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """World tx (n, 2) and rx (n, 2, 2) at robot poses (n, 3)."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    ant = np.einsum("nij,aj->nai", rot, antennas) + poses[:, None, :2]
+    return ant[:, 0], ant[:, 1:]
+
+
+def _rotate(v: FloatArray, yaw: FloatArray) -> FloatArray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], -1)
+
+
+def _group_mean(x: FloatArray, g: IntArray, n: int, trim: float) -> tuple[FloatArray, IntArray]:
+    """Per-group mean of points ``x`` (m, 2) without NaN rows, then again without the points
+    farther than ``trim`` from it (a track that switched echoes for a few acquisitions)."""
+    ok = np.all(np.isfinite(x), 1)
+    mean = np.full((n, 2), np.nan)
+    cnt = np.zeros(n, np.int64)
+    for _ in range(2):
+        cnt = np.bincount(g[ok], minlength=n)
+        sums = np.stack([np.bincount(g[ok], x[ok, i], minlength=n) for i in range(2)], -1)
+        mean = np.where(cnt[:, None] > 0, sums / np.maximum(cnt, 1)[:, None], np.nan)
+        near = np.linalg.norm(x - mean[g], axis=1) <= trim
+        ok = ok & np.where(np.isfinite(near), near, False)
+    return mean, cnt
+
+
+def _predict(
+    kinds: IntArray, states: FloatArray, tx: FloatArray, rx: FloatArray, fov: float, yaw: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Predicted ranges (..., 2) of landmarks and whether each can echo (in the beam, a wall
+    in front of the transmitter), broadcast over leading axes (Fig. 19 models)."""
+    smoother = LeastSquaresPathMapSmoother(np.zeros((3, 2)))
+    r, ok, d = smoother._predict(kinds, states, tx, rx)
+    bore = np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    ok = ok & (np.sum(d * bore, -1) >= np.cos(fov))
+    return r, ok
+
+
+def map_fixed_path(
+    pairs: list[npt.ArrayLike],
+    groups: list[npt.ArrayLike] | None,
+    path: npt.ArrayLike,
+    antennas: npt.ArrayLike,
+    config: FixedPathConfig | None = None,
+) -> FixedPathMap:
+    """Walls, corners and points from a robot's echo pairs at known poses (module docstring).
+
+    Parameters
+    ----------
+    pairs : list of array_like, shape (m_i, 2)
+        Echo pairs ``(r1, r2)`` of every acquisition, m (the mapper's front end:
+        :class:`~fusion_center.mapping.echoes.EnvelopePeakEchoExtractor`,
+        :func:`~fusion_center.mapping.echoes.pair_echoes`).
+    groups : list of array_like of int, shape (m_i,), optional
+        Echo-group id of every pair (:class:`~fusion_center.mapping.grouping.KalmanEchoGrouper`);
+        ``None``: every pair is its own group.
+    path : array_like, shape (n, 3)
+        ``[x, y, yaw]`` of every acquisition (m, rad), any fixed frame (usually the first
+        pose's); the map comes out in it.
+    antennas : array_like, shape (3, 2)
+        tx, rx1, rx2 in the robot frame (x forward, y left), m.
+    config : FixedPathConfig, optional
+
+    Returns
+    -------
+    FixedPathMap
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match, non-finite values or a degenerate array (one line).
+    """
+    cfg = config or FixedPathConfig()
+    poses = np.asarray(path, float)
+    if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] == 0:
+        raise ValueError(f"path must have shape (n, 3) with n >= 1, got {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise ValueError("path holds non-finite values")
+    ant = np.asarray(antennas, float)
+    if ant.shape != (3, 2) or not np.all(np.isfinite(ant)):
+        raise ValueError(
+            f"antennas must be finite tx, rx1, rx2 positions, shape (3, 2), got {ant.shape}"
+        )
+    if np.linalg.norm(ant[1] - ant[2]) < 1e-6:
+        raise ValueError("antennas: the two receivers coincide")
+    n = poses.shape[0]
+    if len(pairs) != n:
+        raise ValueError(f"pairs must have one entry per pose ({n}), got {len(pairs)}")
+    if groups is not None and len(groups) != n:
+        raise ValueError(f"groups must have one entry per pose ({n}), got {len(groups)}")
+    zs = [np.asarray(p, float).reshape(-1, 2) for p in pairs]
+    z = np.concatenate([*zs, np.zeros((0, 2))])
+    if not np.all(np.isfinite(z)):
+        raise ValueError("pairs hold non-finite ranges")
+    acq = np.repeat(np.arange(n), [x.shape[0] for x in zs])
+    if groups is None:
+        gid = np.arange(z.shape[0])
+    else:
+        gs = [np.asarray(g).reshape(-1) for g in groups]
+        if any(g.size != x.shape[0] for g, x in zip(gs, zs, strict=True)):
+            raise ValueError("groups must have one id per pair")
+        g_all = np.concatenate([*gs, np.zeros(0)]).astype(np.int64)
+        gid = np.unique(g_all, return_inverse=True)[1].reshape(-1)
+    step = np.r_[0.0, np.hypot(*np.diff(poses[:, :2], axis=0).T)]
+    stop_of = np.cumsum(step > cfg.drive_distance).astype(np.int64)
+    empty = FixedPathMap(
+        map=SlamMap(), poses=poses.copy(), stop_corrections=np.zeros((stop_of[-1] + 1, 3))
+    )
+    if z.shape[0] == 0:
+        return empty
+    mapper = _FixedPathMapper(cfg, ant, poses, z, acq, gid, stop_of)
+    return mapper.run()
+
+
+class _FixedPathMapper:
+    """The state of one :func:`map_fixed_path` run."""
+
+    def __init__(
+        self,
+        cfg: FixedPathConfig,
+        ant: FloatArray,
+        poses: FloatArray,
+        z: FloatArray,
+        acq: IntArray,
+        gid: IntArray,
+        stop_of: IntArray,
+    ) -> None:
+        self.cfg = cfg
+        self.ant = ant
+        self.path0 = poses
+        self.poses = poses.copy()
+        self.z, self.acq, self.gid = z, acq, gid
+        self.n_groups = int(gid.max()) + 1
+        self.stop_of = stop_of
+        self.n_stops = int(stop_of[-1]) + 1
+        self.pair_stop = stop_of[acq]
+        self.corr = np.zeros((self.n_stops, 3))
+        self.fitter = LeastSquaresPathMapSmoother(
+            ant, SmootherConfig(range_sigma=cfg.range_sigma, loss_scale=cfg.loss_scale)
+        )
+        self.rx_body = ant[1:] - ant[0]
+        # the rotation centre of a stop's correction: its mean transmitter position
+        tx, _ = _world_array(poses, ant)
+        cnt = np.bincount(stop_of, minlength=self.n_stops)
+        self.centre = np.stack(
+            [np.bincount(stop_of, tx[:, i], minlength=self.n_stops) / cnt for i in range(2)], -1
+        )
+
+    # --- hypotheses ---------------------------------------------------------------------------
+
+    def hypotheses(self) -> tuple[IntArray, FloatArray, IntArray]:
+        """Kinds, initial states and group support of the landmarks found by cross-stop
+        consistency of the groups' hypotheses (steps 1-3 of the module docstring)."""
+        cfg = self.cfg
+        tx, _ = _world_array(self.poses, self.ant)
+        yaw = self.poses[self.acq, 2]
+        tx_p = tx[self.acq]
+        img = tx_p + _rotate(invert_image(self.z, self.rx_body), yaw)
+        pt = tx_p + _rotate(invert_point(self.z, self.rx_body), yaw)
+        g = self.gid
+        ng = self.n_groups
+        img_g, cnt = _group_mean(img, g, ng, 2 * cfg.point_gate)
+        pt_g, _ = _group_mean(pt, g, ng, 2 * cfg.point_gate)
+        tx_g, _ = _group_mean(tx_p, g, ng, np.inf)
+        stop_g = np.zeros(ng, np.int64)
+        stop_g[g[::-1]] = self.pair_stop[::-1]  # the stop of each group's first pair
+        use = (cnt >= cfg.min_group_pairs) & np.all(np.isfinite(img_g), 1)
+        use &= np.all(np.isfinite(pt_g), 1)
+        idx = np.flatnonzero(use)
+        if idx.size == 0:
+            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, np.int64)
+        foot = 0.5 * (tx_g[idx] + img_g[idx])  # wall's foot point, also the corner
+        v = img_g[idx] - tx_g[idx]
+        nrm = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        pnt = pt_g[idx]
+        st = stop_g[idx]
+        other = st[:, None] != st[None, :]
+        # wall: normals within wall_angle, each foot point on the other's line
+        cos = nrm @ nrm.T
+        off = np.abs(np.einsum("ik,ijk->ij", nrm, foot[None, :, :] - foot[:, None, :]))
+        wall_ok = other & (cos >= np.cos(cfg.wall_angle)) & (off <= cfg.wall_gate)
+        wall_ok &= wall_ok.T
+        # point-like: corner or point positions within point_gate
+        dc = np.linalg.norm(foot[:, None] - foot[None], axis=-1)
+        dp = np.linalg.norm(pnt[:, None] - pnt[None], axis=-1)
+        point_ok = other & ((dc <= cfg.point_gate) | (dp <= cfg.point_gate))
+        onehot = np.zeros((idx.size, self.n_stops))
+        onehot[np.arange(idx.size), st] = 1.0
+        w_sup = ((wall_ok @ onehot) > 0).sum(1)
+        p_sup = ((point_ok @ onehot) > 0).sum(1)
+        is_wall = (w_sup >= p_sup) & (w_sup > 0)
+        is_pt = (p_sup > w_sup) & (p_sup > 0)
+        size = cnt[idx].astype(float)
+        kinds, states, support = [], [], []
+        free = is_wall | is_pt
+        # greedy clustering, most pairs first: each seed takes the free groups of its kind
+        # that are consistent with it (or from its own stop and on the same hypothesis)
+        for i in np.argsort(-size):
+            if not free[i]:
+                continue
+            if is_wall[i]:
+                same = (cos[i] >= np.cos(cfg.wall_angle)) & (off[i] <= cfg.wall_gate)
+                same &= off[:, i] <= cfg.wall_gate
+                members = free & is_wall & same
+                ww = size[members] / size[members].sum()
+                nn = ww @ nrm[members]
+                a = float(np.arctan2(nn[1], nn[0]))
+                d = float(ww @ (foot[members] @ np.array([np.cos(a), np.sin(a)])))
+                kinds.append(WALL)
+                states.append([a, d])
+            else:
+                members = free & is_pt & ((dc[i] <= cfg.point_gate) | (dp[i] <= cfg.point_gate))
+                ww = size[members] / size[members].sum()
+                kinds.append(CORNER)
+                states.append(ww @ (0.5 * (foot[members] + pnt[members])))
+            members[i] = True
+            support.append(int(members.sum()))
+            free &= ~members
+        return (
+            np.array(kinds, np.int64),
+            np.array(states, float).reshape(-1, 2),
+            np.array(support, np.int64),
+        )
+
+    # --- association and fit ------------------------------------------------------------------
+
+    def associate(self, kinds: IntArray, states: FloatArray, gate: float) -> IntArray:
+        """Landmark of every pair (-1: none), whole echo groups at once: each group goes to
+        the landmark whose predicted echoes explain its pairs best (clipped squared
+        residuals, each range gated at ``gate``, m)."""
+        cfg = self.cfg
+        m = self.z.shape[0]
+        nl = kinds.size
+        if nl == 0:
+            return np.full(m, -1)
+        tx, rx = _world_array(self.poses, self.ant)
+        gate2 = (gate / cfg.range_sigma) ** 2
+        cost = np.empty((m, nl))
+        for a in range(0, m, 1024):
+            b = min(a + 1024, m)
+            ac = self.acq[a:b]
+            r, ok = _predict(
+                kinds[None, :],
+                states[None, :, :],
+                tx[ac, None, :],
+                rx[ac, None, :, :],
+                cfg.fov,
+                self.poses[ac, 2][:, None],
+            )
+            res = np.abs(self.z[a:b, None, :] - r) / cfg.range_sigma
+            inside = ok & np.all(res**2 <= gate2, -1)
+            cost[a:b] = np.where(inside, np.minimum(np.sum(res**2, -1), 2 * gate2), np.inf)
+        clipped = np.minimum(cost, 2 * gate2)
+        group_cost = np.zeros((self.n_groups, nl))
+        np.add.at(group_cost, self.gid, clipped)
+        best = np.argmin(group_cost, 1)
+        lm = best[self.gid]
+        # a group no landmark explains better than clutter stays out
+        none = group_cost[np.arange(self.n_groups), best] >= 2 * gate2 * np.bincount(
+            self.gid, minlength=self.n_groups
+        )
+        lm = np.where(np.isfinite(cost[np.arange(m), lm]) & ~none[self.gid], lm, -1)
+        return lm
+
+    def fit(self, kinds: IntArray, states: FloatArray, lm: IntArray) -> tuple[IntArray, FloatArray]:
+        """Fit every landmark to its pairs at the current poses; point-like landmarks take
+        the better of corner and point (Cauchy cost)."""
+        tx, rx = _world_array(self.poses, self.ant)
+        used = lm >= 0
+        li, z, ac = lm[used], self.z[used], self.acq[used]
+        states = states.copy()
+        kinds = kinds.copy()
+        for kind in (WALL, CORNER):
+            sel = (kinds == WALL) if kind == WALL else (kinds != WALL)
+            idx = np.flatnonzero(sel)
+            if idx.size == 0:
+                continue
+            local = np.full(kinds.size, -1)
+            local[idx] = np.arange(idx.size)
+            on = sel[li]
+            lml = local[li[on]]
+            if kind == WALL:
+                st, _ = self.fitter.fit_alone(WALL, states[idx], lml, z[on], tx[ac[on]], rx[ac[on]])
+                states[idx] = st
+                continue
+            st_c, c_c = self.fitter.fit_alone(
+                CORNER, states[idx], lml, z[on], tx[ac[on]], rx[ac[on]]
+            )
+            st_p, c_p = self.fitter.fit_alone(
+                POINT, states[idx], lml, z[on], tx[ac[on]], rx[ac[on]]
+            )
+            corner = c_c <= c_p
+            states[idx] = np.where(corner[:, None], st_c, st_p)
+            kinds[idx] = np.where(corner, CORNER, POINT)
+        return kinds, states
+
+    def support(self, n_lm: int, lm: IntArray) -> tuple[IntArray, IntArray]:
+        """Associated pairs and distinct stops of every landmark."""
+        used = lm >= 0
+        pairs = np.bincount(lm[used], minlength=n_lm)
+        if not np.any(used):
+            return pairs, np.zeros(n_lm, np.int64)
+        key = np.unique(np.column_stack([lm[used], self.pair_stop[used]]), axis=0)
+        return pairs, np.bincount(key[:, 0], minlength=n_lm)
+
+    # --- path refinement ----------------------------------------------------------------------
+
+    def corrected_poses(self, corr: FloatArray) -> FloatArray:
+        """The given path with every stop's rigid correction about its centre."""
+        p = self.path0
+        c = corr[self.stop_of]
+        ctr = self.centre[self.stop_of]
+        # the transmitter rotates about the stop's centre; the robot origin moves with it
+        tx, _ = _world_array(p, self.ant)
+        new_tx = ctr + _rotate(tx - ctr, c[:, 2]) + c[:, :2]
+        yaw = p[:, 2] + c[:, 2]
+        origin = new_tx - _rotate(np.broadcast_to(self.ant[0], (p.shape[0], 2)), yaw)
+        return np.column_stack([origin, yaw])
+
+    def refine(
+        self, kinds: IntArray, states: FloatArray, lm: IntArray, iterations: int = 6
+    ) -> FloatArray:
+        """Joint Gauss-Newton over every stop's rigid correction and every landmark (bundle
+        adjustment at the associations ``lm``): Cauchy-weighted echoes (iteratively
+        reweighted), a Gaussian prior ``path_sigma`` on the corrections, the first stop
+        held. The normal equations are dense (3 per stop + 2 per landmark: a few hundred
+        unknowns); the Jacobian comes from central differences, vectorised over all pairs
+        (a pair depends on one stop and one landmark only). Returns the landmark states;
+        the corrections and poses are updated in place."""
+        cfg = self.cfg
+        used = lm >= 0
+        li, z, ac = lm[used], self.z[used], self.acq[used]
+        m = z.shape[0]
+        if m == 0:
+            return states
+        stp = self.stop_of[ac]
+        ns, nl = self.n_stops, kinds.size
+        n_pose = 3 * (ns - 1)
+        n_all = n_pose + 2 * nl
+        prior = 1.0 / np.array([cfg.path_sigma[0], cfg.path_sigma[0], cfg.path_sigma[1]]) ** 2
+        c2 = cfg.loss_scale**2
+        h = np.array([1e-4, 1e-4, 1e-5])
+        # unknowns touched by each pair: its stop's 3 (a dummy past the end for the first
+        # stop, which is held) and its landmark's 2
+        cols = np.empty((m, 5), np.int64)
+        cols[:, :3] = np.where(stp[:, None] > 0, 3 * (stp[:, None] - 1) + np.arange(3), n_all)
+        cols[:, 3:] = n_pose + 2 * li[:, None] + np.arange(2)
+        st = states.copy()
+
+        def ranges(corr: FloatArray, st_: FloatArray) -> FloatArray:
+            p = self.corrected_poses(corr)[ac]
+            tx, rx = _world_array(p, self.ant)
+            r, _ = _predict(kinds[li], st_[li], tx, rx, np.pi, p[:, 2])
+            return r
+
+        for _ in range(iterations):
+            r0 = ranges(self.corr, st)
+            res = (z - r0) / cfg.range_sigma  # (m, 2)
+            w = 1.0 / (1.0 + res**2 / c2)
+            jac = np.zeros((m, 2, 5))
+            for j in range(3):
+                d = np.zeros(3)
+                d[j] = h[j]
+                jac[:, :, j] = (ranges(self.corr + d, st) - ranges(self.corr - d, st)) / (2 * h[j])
+            for j in range(2):
+                d = np.zeros(2)
+                d[j] = 1e-5
+                jac[:, :, 3 + j] = (ranges(self.corr, st + d) - ranges(self.corr, st - d)) / 2e-5
+            jac /= cfg.range_sigma
+            big = np.zeros((n_all + 1, n_all + 1))
+            grad = np.zeros(n_all + 1)
+            np.add.at(
+                big,
+                (cols[:, :, None], cols[:, None, :]),
+                np.einsum("mj,mjk,mjl->mkl", w, jac, jac),
+            )
+            np.add.at(grad, cols, np.einsum("mj,mjk,mj->mk", w, jac, res))
+            big, grad = big[:n_all, :n_all], grad[:n_all]
+            free = self.corr[1:].reshape(-1)
+            big[np.arange(n_pose), np.arange(n_pose)] += np.tile(prior, ns - 1)
+            grad[:n_pose] -= np.tile(prior, ns - 1) * free
+            # a landmark seen from one pose only is not determined along its echo's circle:
+            # a little damping keeps the system regular
+            diag = np.arange(n_pose, n_all)
+            big[diag, diag] += 1e-3 * big[diag, diag] + 1e-6
+            delta = np.linalg.solve(big, grad)
+            self.corr[1:] += delta[:n_pose].reshape(-1, 3)
+            step = delta[n_pose:].reshape(-1, 2)
+            # a landmark step of more than 0.3 m (or rad) is a poor linearisation
+            norm = np.linalg.norm(step, axis=1, keepdims=True)
+            st += step * np.minimum(1.0, 0.3 / np.maximum(norm, 1e-12))
+        self.poses = self.corrected_poses(self.corr)
+        return st
+
+    # --- the run ------------------------------------------------------------------------------
+
+    def run(self) -> FixedPathMap:
+        cfg = self.cfg
+        kinds, states, _ = self.hypotheses()
+        lm = np.full(self.z.shape[0], -1)
+        ratio = cfg.assoc_gate / cfg.assoc_gate_start
+        for rnd in range(cfg.rounds):
+            if kinds.size == 0:
+                break
+            gate = cfg.assoc_gate_start * ratio ** (rnd / max(cfg.rounds - 1, 1))
+            lm = self.associate(kinds, states, gate)
+            kinds, states = self.fit(kinds, states, lm)
+            if cfg.refine_path and self.n_stops > 1:
+                states = self.refine(kinds, states, lm)
+            if rnd + 1 < cfg.rounds:
+                pairs, _ = self.support(kinds.size, lm)
+                keep = pairs > 0
+                kinds, states = kinds[keep], states[keep]
+                kinds, states = merge_duplicates(
+                    kinds,
+                    states,
+                    pairs[keep],
+                    wall_dist=cfg.merge_dist,
+                    wall_angle=cfg.merge_angle,
+                    point_dist=cfg.merge_point_dist,
+                )
+        if kinds.size:
+            lm = self.associate(kinds, states, cfg.assoc_gate)
+            kinds, states = self.fit(kinds, states, lm)
+        pairs, stops = self.support(kinds.size, lm)
+        the_map = build_map(
+            self.landmark_set(kinds, states, lm, pairs, stops),
+            overlap_dist=cfg.overlap_dist,
+            overlap_angle=cfg.overlap_angle,
+            extend=cfg.extend,
+        )
+        return FixedPathMap(
+            map=the_map,
+            poses=self.poses.copy(),
+            kinds=kinds,
+            states=states,
+            pairs=pairs.astype(np.int64),
+            stops=stops.astype(np.int64),
+            stop_corrections=self.corr.copy(),
+        )
+
+    def landmark_set(
+        self, kinds: IntArray, states: FloatArray, lm: IntArray, pairs: IntArray, stops: IntArray
+    ) -> LandmarkSet:
+        """The landmarks with enough support; a wall's extent from its specular points."""
+        cfg = self.cfg
+        ok = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
+        nl = kinds.size
+        extent = np.full((nl, 2), np.nan)
+        on = (lm >= 0) & (kinds[np.maximum(lm, 0)] == WALL) & ok[np.maximum(lm, 0)]
+        if np.any(on):
+            tx, _ = _world_array(self.poses[self.acq[on]], self.ant)
+            li = lm[on]
+            w = states[li]
+            nrm = np.stack([np.cos(w[:, 0]), np.sin(w[:, 0])], -1)
+            foot = tx + (w[:, 1] - np.sum(nrm * tx, -1))[:, None] * nrm
+            t = wall_tangent(w, foot)
+            order = np.lexsort((t, li))
+            li, t = li[order], t[order]
+            start = np.searchsorted(li, np.arange(nl))
+            count = np.bincount(li, minlength=nl)
+            seen = count > 0
+            q = cfg.extent_quantile
+            lo = start + np.floor(q * (count - 1)).astype(int)
+            hi = start + np.ceil((1.0 - q) * (count - 1)).astype(int)
+            extent[seen] = np.column_stack([t[lo[seen]], t[hi[seen]]])
+        wall = ok & (kinds == WALL) & np.all(np.isfinite(extent), 1)
+        pt = ok & (kinds != WALL)
+        return LandmarkSet(
+            walls=states[wall],
+            wall_extent=extent[wall],
+            wall_hits=pairs[wall].astype(float),
+            points=states[pt],
+            point_is_corner=kinds[pt] == CORNER,
+            point_hits=pairs[pt].astype(float),
+        )

@@ -1,0 +1,150 @@
+"""Batch mapping at a known path (fixed_path.py) on the synthetic room's echoes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion_center.mapping.fixed_path import FixedPathConfig, map_fixed_path
+from fusion_center.mapping.grouping import KalmanEchoGrouper
+from fusion_center.mapping.synthetic import echo_pairs, rectangle_room, stop_and_turn_poses
+
+ANTENNAS = np.array([[0.0, 0.0], [0.0, 0.5], [0.0, -0.5]])
+STOPS = [[1.5, 1.5], [3.0, 1.2], [4.5, 1.5], [4.5, 3.5], [3.0, 3.8], [1.5, 3.5]]
+TURN = 60
+
+
+def _echoes(seed: int = 1):
+    """The room's echo pairs at every pose of a stop-and-turn path, grouped as the mapper
+    groups them (Kalman tracks, reset at every drive)."""
+    room = rectangle_room()
+    poses = stop_and_turn_poses(STOPS, TURN, np.radians(6.0))
+    rng = np.random.default_rng(seed)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+    grouper = KalmanEchoGrouper()
+    ids = []
+    for i, z in enumerate(pairs):
+        if i % TURN == 0:
+            grouper.reset()
+        ids.append(grouper.step(z))
+    return room, poses, pairs, ids
+
+
+def _seg_dist(seg: np.ndarray, p: np.ndarray) -> np.ndarray:
+    a, b = seg[:2], seg[2:]
+    e = b - a
+    t = np.clip((p - a) @ e / (e @ e), 0.0, 1.0)
+    return np.linalg.norm(a + t[:, None] * e - p, axis=1)
+
+
+def _wall_errors(room, walls: np.ndarray) -> np.ndarray:
+    """For every true wall, the largest distance of the closest mapped wall's end points
+    from its line (inf if no mapped wall runs along it)."""
+    out = []
+    for w in room.walls:
+        e = (w[2:] - w[:2]) / np.linalg.norm(w[2:] - w[:2])
+        n = np.array([-e[1], e[0]])
+        best = np.inf
+        for m in walls:
+            d = np.abs((m.reshape(2, 2) - w[:2]) @ n)
+            along = (m.reshape(2, 2) - w[:2]) @ e
+            if abs((m[2:] - m[:2]) @ n) < 0.2 * np.linalg.norm(m[2:] - m[:2]) and np.any(
+                (along > 0) & (along < np.linalg.norm(w[2:] - w[:2]))
+            ):
+                best = min(best, float(d.max()))
+        out.append(best)
+    return np.array(out)
+
+
+def test_the_room_is_mapped_at_its_true_path() -> None:
+    room, poses, pairs, ids = _echoes()
+    res = map_fixed_path(pairs, ids, poses, ANTENNAS)
+    m = res.map
+    # every wall found, along its true line within 3 cm at both ends (1 cm echoes)
+    err = _wall_errors(room, m.walls)
+    assert np.all(err < 0.03), err
+    assert len(m.walls) == 4
+    # corners and the two point scatterers: each within 5 cm of a mapped corner / point
+    found = np.vstack([m.corners, m.points])
+    d_c = np.linalg.norm(room.corners[:, None] - found[None], axis=-1).min(1)
+    d_p = np.linalg.norm(room.points[:, None] - m.points[None], axis=-1).min(1)
+    assert np.all(d_c < 0.05), d_c
+    assert np.all(d_p < 0.05), d_p
+    # nothing mapped that is not in the room
+    ghosts = [
+        p
+        for p in found
+        if min(
+            np.linalg.norm(room.corners - p, axis=1).min(),
+            np.linalg.norm(room.points - p, axis=1).min(),
+        )
+        > 0.2
+    ]
+    assert not ghosts
+    assert np.array_equal(res.poses, poses) and not np.any(res.stop_corrections)
+
+
+def test_path_refinement_pulls_perturbed_stops_back() -> None:
+    room, poses, pairs, ids = _echoes(2)
+    rng = np.random.default_rng(5)
+    off = rng.normal(0.0, 1.0, (len(STOPS), 3)) * [0.05, 0.05, np.radians(1.5)]
+    off[0] = 0.0
+    bad = poses + np.repeat(off, TURN, axis=0)
+    cfg = FixedPathConfig(refine_path=True, path_sigma=(0.1, np.radians(3.0)))
+    res = map_fixed_path(pairs, ids, bad, ANTENNAS, cfg)
+    before = np.sqrt(np.mean(np.sum((bad[:, :2] - poses[:, :2]) ** 2, 1)))
+    after = np.sqrt(np.mean(np.sum((res.poses[:, :2] - poses[:, :2]) ** 2, 1)))
+    yaw_after = np.abs(res.poses[:, 2] - poses[:, 2]).max()
+    assert before > 0.04
+    assert after < 0.4 * before, (before, after)
+    assert yaw_after < np.radians(0.5)
+    assert np.all(_wall_errors(room, res.map.walls) < 0.04)
+    # without the refinement the same path leaves the walls further off
+    plain = map_fixed_path(pairs, ids, bad, ANTENNAS)
+    assert _wall_errors(room, plain.map.walls).max() > _wall_errors(room, res.map.walls).max()
+
+
+def test_no_echoes_give_an_empty_map() -> None:
+    poses = stop_and_turn_poses(STOPS[:2], 5, 0.1)
+    res = map_fixed_path([np.zeros((0, 2))] * len(poses), None, poses, ANTENNAS)
+    assert len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"path": np.zeros((3, 2))}, "path must have shape"),
+        ({"path": np.full((3, 3), np.nan)}, "non-finite"),
+        ({"antennas": np.zeros((2, 2))}, "antennas"),
+        ({"antennas": np.zeros((3, 2))}, "receivers coincide"),
+        ({"pairs": [np.zeros((0, 2))] * 2}, "one entry per pose"),
+        ({"groups": [np.zeros(1)] * 3}, "one id per pair"),
+        ({"pairs": [np.array([[np.inf, 2.0]])] + [np.zeros((0, 2))] * 2}, "non-finite ranges"),
+    ],
+)
+def test_bad_input_is_refused_in_one_line(kwargs, match) -> None:
+    args = {
+        "pairs": [np.zeros((0, 2))] * 3,
+        "groups": None,
+        "path": np.zeros((3, 3)),
+        "antennas": ANTENNAS,
+    }
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match) as err:
+        map_fixed_path(args["pairs"], args["groups"], args["path"], args["antennas"])
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"range_sigma": 0.0},
+        {"rounds": 0},
+        {"min_stops": 1.5},
+        {"path_sigma": (0.1,)},
+        {"extent_quantile": 0.5},
+    ],
+)
+def test_bad_configuration_is_refused(kwargs) -> None:
+    with pytest.raises(ValueError, match="FixedPathConfig"):
+        FixedPathConfig(**kwargs)

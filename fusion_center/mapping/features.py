@@ -152,6 +152,7 @@ def build_map(
     merge_angle: float = np.radians(6.0),
     overlap_dist: float = 0.0,
     overlap_angle: float = 0.0,
+    fitted_kinds: bool = False,
 ) -> SlamMap:
     """Walls (segments), corners and points from a particle's landmarks.
 
@@ -166,6 +167,11 @@ def build_map(
         Walls closer than this (m, rad) are one wall.
     overlap_dist, overlap_angle : float
         Overlapping walls closer than this (m, rad) are one wall (0: off).
+    fitted_kinds : bool
+        Take corner or point from ``lm.point_is_corner`` for every point-like landmark, not
+        from the walls around it: for landmarks whose kind was fitted to echoes from several
+        stops (:mod:`fusion_center.mapping.fixed_path`), where the geometric rule made the
+        convex edges of objects, at the junction of two of their mapped faces, corners.
 
     Returns
     -------
@@ -191,7 +197,7 @@ def build_map(
         tang = np.zeros((len(pts), len(walls)))
     near = off <= tol
     corner = np.zeros(len(pts), bool)
-    for k in range(len(pts)):
+    for k in range(0 if fitted_kinds else len(pts)):
         idx = np.flatnonzero(near[k])
         if idx.size >= 2:
             cosines = np.abs(n[idx] @ n[idx].T)
@@ -200,6 +206,8 @@ def build_map(
             corner[k] = False
         else:
             corner[k] = bool(lm.point_is_corner[k])
+    if fitted_kinds:
+        corner = np.asarray(lm.point_is_corner, bool).copy()
     # extend wall ends to corners on their line, then to junctions with other walls
     ext = extent.copy()
     for w in range(len(walls)):

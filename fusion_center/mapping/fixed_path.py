@@ -102,6 +102,11 @@ class FixedPathConfig:
     overlap_dist, overlap_angle, extend : float
         :func:`~fusion_center.mapping.features.build_map`'s merging of overlapping walls and
         longest wall extension.
+    fitted_kinds : bool
+        Corner or point as fitted (the better Cauchy cost of the two models over all the
+        landmark's echoes), not by :func:`~fusion_center.mapping.features.build_map`'s
+        geometric rule, which makes an object's convex edge between two of its mapped
+        faces a corner.
     """
 
     range_sigma: float = 0.02
@@ -126,6 +131,7 @@ class FixedPathConfig:
     overlap_dist: float = 0.3
     overlap_angle: float = np.radians(12.0)
     extend: float = 1.0
+    fitted_kinds: bool = True
 
     def __post_init__(self) -> None:
         positive = {
@@ -616,6 +622,7 @@ class _FixedPathMapper:
             overlap_dist=cfg.overlap_dist,
             overlap_angle=cfg.overlap_angle,
             extend=cfg.extend,
+            fitted_kinds=cfg.fitted_kinds,
         )
         return FixedPathMap(
             map=the_map,

@@ -148,3 +148,20 @@ def test_bad_input_is_refused_in_one_line(kwargs, match) -> None:
 def test_bad_configuration_is_refused(kwargs) -> None:
     with pytest.raises(ValueError, match="FixedPathConfig"):
         FixedPathConfig(**kwargs)
+
+
+def test_fitted_kinds_keep_an_edge_between_two_faces_a_point() -> None:
+    from fusion_center.mapping.features import LandmarkSet, build_map
+
+    # two faces of a box meeting at (2, 1) and a point-like landmark there, fitted as a point
+    lm = LandmarkSet(
+        walls=np.array([[0.0, 2.0], [np.pi / 2, 1.0]]),
+        wall_extent=np.array([[1.0, 3.0], [2.0, 4.0]]),
+        wall_hits=np.array([20.0, 20.0]),
+        points=np.array([[2.0, 1.0]]),
+        point_is_corner=np.array([False]),
+        point_hits=np.array([20.0]),
+    )
+    assert len(build_map(lm).corners) == 1  # the geometric rule: a junction is a corner
+    m = build_map(lm, fitted_kinds=True)
+    assert len(m.corners) == 0 and np.allclose(m.points, [[2.0, 1.0]])

@@ -600,7 +600,11 @@ class _FixedPathMapper:
             lm = self.associate(kinds, states, gate)
             kinds, states = self.fit(kinds, states, lm)
             if cfg.refine_path and self.n_stops > 1:
-                states = self.refine(kinds, states, lm)
+                # only landmarks that would be mapped pull the stops (a ghost seen from one
+                # stop explains clutter, and at the wrong pose it holds a stop there)
+                pairs, stops = self.support(kinds.size, lm)
+                strong = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
+                states = self.refine(kinds, states, np.where(strong[np.maximum(lm, 0)], lm, -1))
             if rnd + 1 < cfg.rounds:
                 pairs, _ = self.support(kinds.size, lm)
                 keep = pairs > 0

@@ -99,6 +99,16 @@ class FixedPathConfig:
         Prior standard deviation of a stop's correction: (m per axis, rad).
     extent_quantile : float
         A wall's extent spans these quantiles of its specular points.
+    wall_gap : float
+        Specular points of one wall further apart than this along it split it into segments
+        (``inf``: one segment), m; the map's walls on one line merge only across such gaps
+        (:func:`~fusion_center.mapping.features.build_map`'s ``merge_gap``). It must exceed
+        the spacing of the stops, whose feet on a wall are its only specular points: 2.5 m
+        found more faces with fewer ghosts on room_pillar (stops 0.5-1 m apart) but split
+        every wall of corridor_L_sparse into unsupported pieces, so it is off.
+    min_wall_length : float
+        Shortest wall segment mapped (between its extent quantiles), m: a corner's echoes
+        seen from stops in line with it also fit a short wall through it.
     overlap_dist, overlap_angle, extend : float
         :func:`~fusion_center.mapping.features.build_map`'s merging of overlapping walls and
         longest wall extension.
@@ -128,6 +138,8 @@ class FixedPathConfig:
     refine_path: bool = False
     path_sigma: tuple[float, float] = (0.05, np.radians(1.0))
     extent_quantile: float = 0.05
+    wall_gap: float = np.inf
+    min_wall_length: float = 0.2
     overlap_dist: float = 0.3
     overlap_angle: float = np.radians(12.0)
     extend: float = 1.0
@@ -148,6 +160,8 @@ class FixedPathConfig:
         for name, v in positive.items():
             if not (np.isfinite(v) and v > 0.0):
                 raise ValueError(f"FixedPathConfig.{name} must be > 0, got {v!r}")
+        if not self.wall_gap > 0.0:
+            raise ValueError(f"FixedPathConfig.wall_gap must be > 0, got {self.wall_gap!r}")
         for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
@@ -623,6 +637,7 @@ class _FixedPathMapper:
         pairs, stops = self.support(kinds.size, lm)
         the_map = build_map(
             self.landmark_set(kinds, states, lm, pairs, stops),
+            merge_gap=cfg.wall_gap,
             overlap_dist=cfg.overlap_dist,
             overlap_angle=cfg.overlap_angle,
             extend=cfg.extend,
@@ -641,34 +656,49 @@ class _FixedPathMapper:
     def landmark_set(
         self, kinds: IntArray, states: FloatArray, lm: IntArray, pairs: IntArray, stops: IntArray
     ) -> LandmarkSet:
-        """The landmarks with enough support; a wall's extent from its specular points."""
+        """The landmarks with enough support. A wall's specular points (the feet of the
+        transmitter's perpendiculars at its pairs' poses) are split where consecutive ones
+        along the line are more than ``wall_gap`` apart: each run is a wall segment of its
+        own (two collinear faces, or a face and echoes far along its line that another
+        landmark made), with its own support; its extent spans the ``extent_quantile``
+        quantiles of its specular points."""
         cfg = self.cfg
         ok = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
-        nl = kinds.size
-        extent = np.full((nl, 2), np.nan)
+        wall_st = np.zeros((0, 2))
+        wall_ext = np.zeros((0, 2))
+        wall_hits = np.zeros(0)
         on = (lm >= 0) & (kinds[np.maximum(lm, 0)] == WALL) & ok[np.maximum(lm, 0)]
         if np.any(on):
             tx, _ = _world_array(self.poses[self.acq[on]], self.ant)
             li = lm[on]
+            stop = self.pair_stop[on]
             w = states[li]
             nrm = np.stack([np.cos(w[:, 0]), np.sin(w[:, 0])], -1)
             foot = tx + (w[:, 1] - np.sum(nrm * tx, -1))[:, None] * nrm
             t = wall_tangent(w, foot)
             order = np.lexsort((t, li))
-            li, t = li[order], t[order]
-            start = np.searchsorted(li, np.arange(nl))
-            count = np.bincount(li, minlength=nl)
-            seen = count > 0
+            li, t, stop = li[order], t[order], stop[order]
+            new_seg = np.r_[True, (np.diff(li) != 0) | (np.diff(t) > cfg.wall_gap)]
+            seg = np.cumsum(new_seg) - 1
+            ns = int(seg[-1]) + 1
+            start = np.flatnonzero(new_seg)
+            count = np.bincount(seg, minlength=ns)
+            seg_stops = np.bincount(
+                np.unique(np.column_stack([seg, stop]), axis=0)[:, 0], minlength=ns
+            )
             q = cfg.extent_quantile
             lo = start + np.floor(q * (count - 1)).astype(int)
             hi = start + np.ceil((1.0 - q) * (count - 1)).astype(int)
-            extent[seen] = np.column_stack([t[lo[seen]], t[hi[seen]]])
-        wall = ok & (kinds == WALL) & np.all(np.isfinite(extent), 1)
+            keep = (count >= cfg.min_pairs) & (seg_stops >= cfg.min_stops)
+            keep &= t[hi] - t[lo] >= cfg.min_wall_length
+            wall_st = states[li[start[keep]]]
+            wall_ext = np.column_stack([t[lo[keep]], t[hi[keep]]])
+            wall_hits = count[keep].astype(float)
         pt = ok & (kinds != WALL)
         return LandmarkSet(
-            walls=states[wall],
-            wall_extent=extent[wall],
-            wall_hits=pairs[wall].astype(float),
+            walls=wall_st,
+            wall_extent=wall_ext,
+            wall_hits=wall_hits,
             points=states[pt],
             point_is_corner=kinds[pt] == CORNER,
             point_hits=pairs[pt].astype(float),

@@ -114,6 +114,7 @@ def test_no_echoes_give_an_empty_map() -> None:
     ("kwargs", "match"),
     [
         ({"path": np.zeros((3, 2))}, "path must have shape"),
+        ({"path": np.zeros((0, 3)), "pairs": []}, "path must have shape"),
         ({"path": np.full((3, 3), np.nan)}, "non-finite"),
         ({"antennas": np.zeros((2, 2))}, "antennas"),
         ({"antennas": np.zeros((3, 2))}, "receivers coincide"),
@@ -165,3 +166,26 @@ def test_fitted_kinds_keep_an_edge_between_two_faces_a_point() -> None:
     assert len(build_map(lm).corners) == 1  # the geometric rule: a junction is a corner
     m = build_map(lm, fitted_kinds=True)
     assert len(m.corners) == 0 and np.allclose(m.points, [[2.0, 1.0]])
+
+
+def test_collinear_faces_with_a_gap_stay_two_walls() -> None:
+    from fusion_center.mapping.synthetic import SyntheticRoom
+
+    base = rectangle_room()
+    # the wall y = 0 has a 2 m doorway in its middle: two faces on one line
+    walls = np.vstack([[[0.0, 0.0, 2.0, 0.0], [4.0, 0.0, 6.0, 0.0]], base.walls[1:]])
+    room = SyntheticRoom(walls=walls, corners=base.corners, points=base.points)
+    poses = stop_and_turn_poses(STOPS, TURN, np.radians(6.0))
+    rng = np.random.default_rng(3)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+
+    def crosses_doorway(cfg: FixedPathConfig) -> bool:
+        w = map_fixed_path(pairs, None, poses, ANTENNAS, cfg).map.walls
+        on_line = np.abs(w[:, 1]) + np.abs(w[:, 3]) < 0.1
+        lo, hi = np.minimum(w[:, 0], w[:, 2]), np.maximum(w[:, 0], w[:, 2])
+        assert np.any(on_line)
+        return bool(np.any(on_line & (lo < 2.5) & (hi > 3.5)))
+
+    kw = {"min_group_pairs": 1, "min_wall_length": 0.0, "extend": 0.5}
+    assert crosses_doorway(FixedPathConfig(**kw))  # default: one wall per line
+    assert not crosses_doorway(FixedPathConfig(wall_gap=2.5, **kw))

@@ -189,3 +189,29 @@ def test_collinear_faces_with_a_gap_stay_two_walls() -> None:
     kw = {"min_group_pairs": 1, "min_wall_length": 0.0, "extend": 0.5}
     assert crosses_doorway(FixedPathConfig(**kw))  # default: one wall per line
     assert not crosses_doorway(FixedPathConfig(wall_gap=2.5, **kw))
+
+
+def test_a_wall_the_robot_drives_through_is_dropped() -> None:
+    from fusion_center.mapping.synthetic import SyntheticRoom
+
+    _, poses, pairs, _ = _echoes()
+    # a ghost: echoes of a wall across the middle of the room, x = 2.4 for y in 0.5..4.5, that
+    # the drives between the stops cross
+    rng = np.random.default_rng(7)
+    line = SyntheticRoom(
+        walls=np.array([[2.4, 0.5, 2.4, 4.5]]), corners=np.zeros((0, 2)), points=np.zeros((0, 2))
+    )
+    extra = [
+        np.vstack([z, echo_pairs(line, p, ANTENNAS, rng)])
+        for z, p in zip(pairs, poses, strict=True)
+    ]
+
+    def across(cfg: FixedPathConfig) -> int:
+        w = map_fixed_path(extra, None, poses, ANTENNAS, cfg).map.walls
+        return int(np.sum((np.abs(w[:, 0] - 2.4) < 0.1) & (np.abs(w[:, 2] - 2.4) < 0.1)))
+
+    # seen from both sides: a wall facing each way; the drives from x = 1.5 to x = 3 cross
+    # the one whose specular points (from the stops at x = 3 and 4.5) span y = 1.2 .. 3.8,
+    # not the other (y = 1.5 .. 3.5, from the stops at x = 1.5 only)
+    assert across(FixedPathConfig(min_group_pairs=1)) == 2
+    assert across(FixedPathConfig(min_group_pairs=1, drop_crossed=True)) == 1

@@ -270,7 +270,8 @@ def map_fixed_path(
         :func:`~fusion_center.mapping.echoes.pair_echoes`).
     groups : list of array_like of int, shape (m_i,), optional
         Echo-group id of every pair (:class:`~fusion_center.mapping.grouping.KalmanEchoGrouper`);
-        ``None``: every pair is its own group.
+        ``None``: every pair is its own group, which needs ``min_group_pairs=1`` (with the
+        default 3 no group can found a landmark and the map is empty).
     path : array_like, shape (n, 3)
         ``[x, y, yaw]`` of every acquisition (m, rad), any fixed frame (usually the first
         pose's); the map comes out in it.
@@ -281,6 +282,8 @@ def map_fixed_path(
     Returns
     -------
     FixedPathMap
+        Empty (no walls, corners or points) when no group's hypothesis is confirmed from
+        another stop: always for a path of one stop, whatever ``min_stops``.
 
     Raises
     ------
@@ -611,9 +614,18 @@ class _FixedPathMapper:
 
     # --- the run ------------------------------------------------------------------------------
 
+    def empty(self) -> FixedPathMap:
+        """The map without landmarks (no group was consistent across stops)."""
+        return FixedPathMap(
+            map=SlamMap(), poses=self.poses.copy(), stop_corrections=self.corr.copy()
+        )
+
     def run(self) -> FixedPathMap:
         cfg = self.cfg
         kinds, states, _ = self.hypotheses()
+        if kinds.size == 0:
+            # echoes, but no hypothesis another stop confirms (one stop, or groups too small)
+            return self.empty()
         lm = np.full(self.z.shape[0], -1)
         ratio = cfg.assoc_gate / cfg.assoc_gate_start
         for rnd in range(cfg.rounds):
@@ -640,9 +652,10 @@ class _FixedPathMapper:
                     wall_angle=cfg.merge_angle,
                     point_dist=cfg.merge_point_dist,
                 )
-        if kinds.size:
-            lm = self.associate(kinds, states, cfg.assoc_gate)
-            kinds, states = self.fit(kinds, states, lm)
+        if kinds.size == 0:
+            return self.empty()
+        lm = self.associate(kinds, states, cfg.assoc_gate)
+        kinds, states = self.fit(kinds, states, lm)
         pairs, stops = self.support(kinds.size, lm)
         the_map = build_map(
             self.landmark_set(kinds, states, lm, pairs, stops),

@@ -110,6 +110,23 @@ def test_no_echoes_give_an_empty_map() -> None:
     assert len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
 
 
+def _is_empty(res) -> bool:
+    return len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
+
+
+def test_echoes_without_a_confirmed_hypothesis_give_an_empty_map() -> None:
+    _, poses, pairs, ids = _echoes()
+    # every pair its own group: below the default min_group_pairs, no hypothesis at all
+    assert _is_empty(map_fixed_path(pairs, None, poses, ANTENNAS))
+    # one stop: no other stop can confirm a hypothesis, whatever min_stops
+    one = slice(0, TURN)
+    assert _is_empty(map_fixed_path(pairs[one], ids[one], poses[one], ANTENNAS))
+    cfg = FixedPathConfig(min_stops=1)
+    assert _is_empty(map_fixed_path(pairs[one], ids[one], poses[one], ANTENNAS, cfg))
+    # one pose with one pair
+    assert _is_empty(map_fixed_path([np.array([[4.0, 4.0]])], None, np.zeros((1, 3)), ANTENNAS))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [

@@ -270,6 +270,7 @@ def map_fixed_path(
         :func:`~fusion_center.mapping.echoes.pair_echoes`).
     groups : list of array_like of int, shape (m_i,), optional
         Echo-group id of every pair (:class:`~fusion_center.mapping.grouping.KalmanEchoGrouper`);
+        ids need only be unique within a stop (a group never spans a drive);
         ``None``: every pair is its own group, which needs ``min_group_pairs=1`` (with the
         default 3 no group can found a landmark and the map is empty).
     path : array_like, shape (n, 3)
@@ -319,10 +320,19 @@ def map_fixed_path(
         gs = [np.asarray(g).reshape(-1) for g in groups]
         if any(g.size != x.shape[0] for g, x in zip(gs, zs, strict=True)):
             raise ValueError("groups must have one id per pair")
-        g_all = np.concatenate([*gs, np.zeros(0)]).astype(np.int64)
-        gid = np.unique(g_all, return_inverse=True)[1].reshape(-1)
+        try:
+            g_all = np.concatenate([*gs, np.zeros(0)]).astype(float)
+        except (TypeError, ValueError):
+            raise ValueError("groups must hold integer ids") from None
+        if not np.all(np.isfinite(g_all)) or np.any(g_all != np.round(g_all)):
+            raise ValueError("groups must hold finite integer ids")
     step = np.r_[0.0, np.hypot(*np.diff(poses[:, :2], axis=0).T)]
     stop_of = np.cumsum(step > cfg.drive_distance).astype(np.int64)
+    if groups is not None:
+        # a group is one track within one stop: keyed by (stop, id), so ids that restart at
+        # every stop (a new grouper per stop) do not merge the groups of different stops
+        key = np.column_stack([stop_of[acq], g_all.astype(np.int64)])
+        gid = np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
     empty = FixedPathMap(
         map=SlamMap(), poses=poses.copy(), stop_corrections=np.zeros((stop_of[-1] + 1, 3))
     )
@@ -383,7 +393,7 @@ class _FixedPathMapper:
         pt_g, _ = _group_mean(pt, g, ng, 2 * cfg.point_gate)
         tx_g, _ = _group_mean(tx_p, g, ng, np.inf)
         stop_g = np.zeros(ng, np.int64)
-        stop_g[g[::-1]] = self.pair_stop[::-1]  # the stop of each group's first pair
+        stop_g[g] = self.pair_stop  # a group lies within one stop (keyed by stop and id)
         use = (cnt >= cfg.min_group_pairs) & np.all(np.isfinite(img_g), 1)
         use &= np.all(np.isfinite(pt_g), 1)
         idx = np.flatnonzero(use)

@@ -110,6 +110,22 @@ def test_no_echoes_give_an_empty_map() -> None:
     assert len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
 
 
+def test_group_ids_need_only_be_unique_within_a_stop() -> None:
+    _, poses, pairs, ids = _echoes()
+    ref = map_fixed_path(pairs, ids, poses, ANTENNAS).map
+    # the same tracks, numbered from 0 again at every stop
+    restart = []
+    for i, g in enumerate(ids):
+        first = min(int(np.min(x)) for x in ids[i - i % TURN : i - i % TURN + TURN] if len(x))
+        restart.append(np.asarray(g) - first)
+    assert restart[TURN].size and restart[TURN].min() == 0
+    res = map_fixed_path(pairs, restart, poses, ANTENNAS).map
+    assert len(res.walls) == len(ref.walls) == 4
+    assert len(res.corners) == len(ref.corners)
+    assert len(res.points) == len(ref.points)
+    np.testing.assert_allclose(res.walls, ref.walls, atol=1e-9)
+
+
 def _is_empty(res) -> bool:
     return len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
 
@@ -127,6 +143,9 @@ def test_echoes_without_a_confirmed_hypothesis_give_an_empty_map() -> None:
     assert _is_empty(map_fixed_path([np.array([[4.0, 4.0]])], None, np.zeros((1, 3)), ANTENNAS))
 
 
+_one_pair = [np.array([[3.0, 3.1]]), np.zeros((0, 2)), np.zeros((0, 2))]
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -137,6 +156,9 @@ def test_echoes_without_a_confirmed_hypothesis_give_an_empty_map() -> None:
         ({"antennas": np.zeros((3, 2))}, "receivers coincide"),
         ({"pairs": [np.zeros((0, 2))] * 2}, "one entry per pose"),
         ({"groups": [np.zeros(1)] * 3}, "one id per pair"),
+        ({"pairs": _one_pair, "groups": [np.array([np.nan]), [], []]}, "integer ids"),
+        ({"pairs": _one_pair, "groups": [np.array([1.5]), [], []]}, "integer ids"),
+        ({"pairs": _one_pair, "groups": [np.array(["a"]), [], []]}, "integer ids"),
         ({"pairs": [np.array([[np.inf, 2.0]])] + [np.zeros((0, 2))] * 2}, "non-finite ranges"),
     ],
 )

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from fusion_center.mapping.features import LandmarkSet, SlamMap, build_map
 from fusion_center.mapping.models import (
@@ -241,6 +242,27 @@ def _group_mean(x: FloatArray, g: IntArray, n: int, trim: float) -> tuple[FloatA
     return mean, cnt
 
 
+def _symmetric(i: IntArray, j: IntArray, n: int) -> tuple[IntArray, IntArray]:
+    """The pairs ``(i, j)`` with ``i < j`` in both orders plus every ``(i, i)``, sorted by
+    ``i`` (a neighbour list)."""
+    a = np.concatenate([i, j, np.arange(n)])
+    b = np.concatenate([j, i, np.arange(n)])
+    order = np.lexsort((b, a))
+    return a[order], b[order]
+
+
+def _close_pairs(points: list[FloatArray], gate: float) -> tuple[IntArray, IntArray]:
+    """Neighbour list (:func:`_symmetric`) of the items within ``gate`` of each other in any
+    one of the given point sets (k-d trees, so memory grows with the pairs found)."""
+    n = points[0].shape[0]
+    ij = np.concatenate(
+        [cKDTree(p).query_pairs(gate, output_type="ndarray") for p in points]
+        + [np.zeros((0, 2), np.int64)]
+    )
+    key = np.unique(ij[:, 0] * n + ij[:, 1])
+    return _symmetric(key // n, key % n, n)
+
+
 def _predict(
     kinds: IntArray, states: FloatArray, tx: FloatArray, rx: FloatArray, fov: float, yaw: FloatArray
 ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
@@ -404,53 +426,98 @@ class _FixedPathMapper:
         nrm = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
         pnt = pt_g[idx]
         st = stop_g[idx]
-        other = st[:, None] != st[None, :]
-        # wall: normals within wall_angle, each foot point on the other's line
-        cos = nrm @ nrm.T
-        off = np.abs(np.einsum("ik,ijk->ij", nrm, foot[None, :, :] - foot[:, None, :]))
-        wall_ok = other & (cos >= np.cos(cfg.wall_angle)) & (off <= cfg.wall_gate)
-        wall_ok &= wall_ok.T
-        # point-like: corner or point positions within point_gate
-        dc = np.linalg.norm(foot[:, None] - foot[None], axis=-1)
-        dp = np.linalg.norm(pnt[:, None] - pnt[None], axis=-1)
-        point_ok = other & ((dc <= cfg.point_gate) | (dp <= cfg.point_gate))
-        onehot = np.zeros((idx.size, self.n_stops))
-        onehot[np.arange(idx.size), st] = 1.0
-        w_sup = ((wall_ok @ onehot) > 0).sum(1)
-        p_sup = ((point_ok @ onehot) > 0).sum(1)
+        wall_nb = self._wall_neighbours(foot, nrm)
+        point_nb = _close_pairs([foot, pnt], cfg.point_gate)
+        w_sup = self._other_stops(wall_nb, st)
+        p_sup = self._other_stops(point_nb, st)
         is_wall = (w_sup >= p_sup) & (w_sup > 0)
         is_pt = (p_sup > w_sup) & (p_sup > 0)
         size = cnt[idx].astype(float)
-        kinds, states, support = [], [], []
-        free = is_wall | is_pt
-        # greedy clustering, most pairs first: each seed takes the free groups of its kind
-        # that are consistent with it (or from its own stop and on the same hypothesis)
-        for i in np.argsort(-size):
-            if not free[i]:
-                continue
-            if is_wall[i]:
-                same = (cos[i] >= np.cos(cfg.wall_angle)) & (off[i] <= cfg.wall_gate)
-                same &= off[:, i] <= cfg.wall_gate
-                members = free & is_wall & same
-                ww = size[members] / size[members].sum()
-                nn = ww @ nrm[members]
-                a = float(np.arctan2(nn[1], nn[0]))
-                d = float(ww @ (foot[members] @ np.array([np.cos(a), np.sin(a)])))
-                kinds.append(WALL)
-                states.append([a, d])
-            else:
-                members = free & is_pt & ((dc[i] <= cfg.point_gate) | (dp[i] <= cfg.point_gate))
-                ww = size[members] / size[members].sum()
-                kinds.append(CORNER)
-                states.append(ww @ (0.5 * (foot[members] + pnt[members])))
-            members[i] = True
-            support.append(int(members.sum()))
-            free &= ~members
-        return (
-            np.array(kinds, np.int64),
-            np.array(states, float).reshape(-1, 2),
-            np.array(support, np.int64),
+        label = self._greedy(size, is_wall, is_pt, wall_nb, point_nb)
+        # every cluster's state: the pair-weighted mean of its members' hypotheses
+        on = label >= 0
+        nl = int(label.max()) + 1 if np.any(on) else 0
+        lab, wgt = label[on], size[on]
+        tot = np.bincount(lab, wgt, minlength=nl)
+
+        def mean(x: FloatArray) -> FloatArray:
+            return np.stack([np.bincount(lab, wgt * x[on, k], minlength=nl) for k in range(2)], -1)
+
+        kind = np.where(is_wall[on], WALL, CORNER)
+        kinds = np.zeros(nl, np.int64)
+        kinds[lab] = kind
+        nn = mean(nrm) / tot[:, None]
+        alpha = np.arctan2(nn[:, 1], nn[:, 0])
+        d = np.bincount(
+            lab, wgt * np.sum(foot[on] * np.stack([np.cos(alpha), np.sin(alpha)], -1)[lab], 1), nl
         )
+        states = np.where(
+            (kinds == WALL)[:, None],
+            np.column_stack([alpha, d / tot]),
+            mean(0.5 * (foot + pnt)) / tot[:, None],
+        )
+        return kinds, states, np.bincount(lab, minlength=nl).astype(np.int64)
+
+    def _wall_neighbours(self, foot: FloatArray, nrm: FloatArray) -> tuple[IntArray, IntArray]:
+        """Every ordered pair ``(i, j)`` (itself included) of groups whose wall hypotheses
+        agree: normals within ``wall_angle`` and each foot point within ``wall_gate`` of the
+        other's line. Candidates come from a k-d tree on ``(n_x, n_y, s d)`` (``d`` the line's
+        offset from the feet's centroid) in the max norm, with ``s`` chosen so that every
+        agreeing pair is a candidate: ``|n_i - n_j| <= c = 2 sin(wall_angle / 2)`` and
+        ``|d_i - d_j| <= wall_gate + c R`` (``R`` the largest foot distance from the
+        centroid); the exact test then runs on the candidates only."""
+        cfg = self.cfg
+        f = foot - foot.mean(0)
+        c = 2.0 * np.sin(0.5 * cfg.wall_angle)
+        radius = float(np.max(np.linalg.norm(f, axis=1)))
+        d = np.sum(nrm * f, 1)
+        scale = c / (cfg.wall_gate + c * radius)
+        tree = cKDTree(np.column_stack([nrm, scale * d]))
+        ij = tree.query_pairs(c * (1.0 + 1e-9), p=np.inf, output_type="ndarray")
+        i, j = ij[:, 0], ij[:, 1]
+        ok = np.sum(nrm[i] * nrm[j], 1) >= np.cos(cfg.wall_angle)
+        ok &= np.abs(np.sum(nrm[i] * (f[j] - f[i]), 1)) <= cfg.wall_gate
+        ok &= np.abs(np.sum(nrm[j] * (f[i] - f[j]), 1)) <= cfg.wall_gate
+        return _symmetric(i[ok], j[ok], foot.shape[0])
+
+    def _other_stops(self, nb: tuple[IntArray, IntArray], st: IntArray) -> IntArray:
+        """How many stops other than its own hold a neighbour of every group."""
+        i, j = nb
+        other = st[i] != st[j]
+        ns = int(st.max()) + 1
+        key = np.unique(i[other] * ns + st[j[other]])  # one per (group, other stop)
+        return np.bincount(key // ns, minlength=st.size)
+
+    @staticmethod
+    def _greedy(
+        size: FloatArray,
+        is_wall: npt.NDArray[np.bool_],
+        is_pt: npt.NDArray[np.bool_],
+        wall_nb: tuple[IntArray, IntArray],
+        point_nb: tuple[IntArray, IntArray],
+    ) -> IntArray:
+        """Cluster of every group (-1: none), greedily, most pairs first: each seed takes
+        the free groups of its kind that agree with it (of any stop). The loop runs once per
+        cluster, over the seed's neighbours only."""
+        ptr = {}
+        for key, (i, j) in (("w", wall_nb), ("p", point_nb)):
+            ptr[key] = (np.searchsorted(i, np.arange(size.size + 1)), j)
+        label = np.full(size.size, -1)
+        free = is_wall | is_pt
+        k = 0
+        for s in np.argsort(-size):
+            if not free[s]:
+                continue
+            wall = bool(is_wall[s])
+            start, nbr = ptr["w" if wall else "p"]
+            cand = nbr[start[s] : start[s + 1]]
+            members = cand[free[cand] & (is_wall[cand] if wall else is_pt[cand])]
+            label[members] = k
+            label[s] = k
+            free[members] = False
+            free[s] = False
+            k += 1
+        return label
 
     # --- association and fit ------------------------------------------------------------------
 

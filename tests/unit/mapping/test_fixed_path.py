@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import tracemalloc
+
 import numpy as np
 import pytest
 
@@ -124,6 +126,26 @@ def test_group_ids_need_only_be_unique_within_a_stop() -> None:
     assert len(res.corners) == len(ref.corners)
     assert len(res.points) == len(ref.points)
     np.testing.assert_allclose(res.walls, ref.walls, atol=1e-9)
+
+
+def test_every_pair_its_own_group_keeps_memory_linear() -> None:
+    """groups=None with min_group_pairs=1: the cross-stop consistency must not build dense
+    arrays over all pairs of groups (9k pairs needed 6 GB so)."""
+    room = rectangle_room()
+    poses = stop_and_turn_poses(STOPS, 180, np.radians(2.0))
+    rng = np.random.default_rng(3)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+    n_pairs = sum(len(p) for p in pairs)
+    assert n_pairs > 1500
+    tracemalloc.start()
+    try:
+        res = map_fixed_path(pairs, None, poses, ANTENNAS, FixedPathConfig(min_group_pairs=1))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # dense (G, G) float arrays alone would take 8 G^2 bytes each
+    assert peak < 8 * n_pairs**2, (peak, n_pairs)
+    assert len(res.map.walls) == 4
 
 
 def _is_empty(res) -> bool:

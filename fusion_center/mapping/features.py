@@ -79,11 +79,16 @@ def merge_walls(
     angle: float,
     overlap_dist: float = 0.0,
     overlap_angle: float = 0.0,
+    max_gap: float = np.inf,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Merge walls on the same line (normals within ``angle``, offsets within ``dist``), and
     overlapping walls on nearly the same line (within ``overlap_angle`` and
     ``overlap_dist``, their extents overlapping along the line: one face seen from poses a
     little apart).
+
+    Walls on the same line merge only where the gap between their extents along it is at
+    most ``max_gap`` (m; ``inf``: whatever the gap): two faces on one line with a doorway
+    or another object between them stay two.
 
     Merged lines are the hit-weighted mean of the walls on the same line (the overlapping
     copies add their extent and hits, not their line: the best supported wall's line
@@ -111,6 +116,10 @@ def merge_walls(
         # offsets' difference is that distance only for parallel lines; at an angle it grows
         # with the distance from the map origin, so the map's frame decided merges)
         same = (~used) & (cos_ij >= np.cos(angle)) & (np.abs(s).max(1) <= dist)
+        if np.isfinite(max_gap):
+            gap_along = np.maximum(t.min(1) - extent[i, 1], extent[i, 0] - t.max(1))
+            same &= gap_along <= max_gap
+            same[i] = True
         near = same.copy()
         if overlap_dist > 0.0:
             # Wall j's distance from wall i's line where the two overlap along it
@@ -152,6 +161,8 @@ def build_map(
     merge_angle: float = np.radians(6.0),
     overlap_dist: float = 0.0,
     overlap_angle: float = 0.0,
+    fitted_kinds: bool = False,
+    merge_gap: float = np.inf,
 ) -> SlamMap:
     """Walls (segments), corners and points from a particle's landmarks.
 
@@ -166,6 +177,14 @@ def build_map(
         Walls closer than this (m, rad) are one wall.
     overlap_dist, overlap_angle : float
         Overlapping walls closer than this (m, rad) are one wall (0: off).
+    merge_gap : float
+        Walls on one line merge only across gaps up to this along it, m (``merge_walls``'s
+        ``max_gap``).
+    fitted_kinds : bool
+        Take corner or point from ``lm.point_is_corner`` for every point-like landmark, not
+        from the walls around it: for landmarks whose kind was fitted to echoes from several
+        stops (:mod:`fusion_center.mapping.fixed_path`), where the geometric rule made the
+        convex edges of objects, at the junction of two of their mapped faces, corners.
 
     Returns
     -------
@@ -179,6 +198,7 @@ def build_map(
         angle=merge_angle,
         overlap_dist=overlap_dist,
         overlap_angle=overlap_angle,
+        max_gap=merge_gap,
     )
     n = _normal(walls[:, 0]) if len(walls) else np.zeros((0, 2))
     pts = lm.points
@@ -191,7 +211,7 @@ def build_map(
         tang = np.zeros((len(pts), len(walls)))
     near = off <= tol
     corner = np.zeros(len(pts), bool)
-    for k in range(len(pts)):
+    for k in range(0 if fitted_kinds else len(pts)):
         idx = np.flatnonzero(near[k])
         if idx.size >= 2:
             cosines = np.abs(n[idx] @ n[idx].T)
@@ -200,6 +220,8 @@ def build_map(
             corner[k] = False
         else:
             corner[k] = bool(lm.point_is_corner[k])
+    if fitted_kinds:
+        corner = np.asarray(lm.point_is_corner, bool).copy()
     # extend wall ends to corners on their line, then to junctions with other walls
     ext = extent.copy()
     for w in range(len(walls)):

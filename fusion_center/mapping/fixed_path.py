@@ -1,0 +1,838 @@
+"""The map of a robot's echoes along a known path (batch mapping at fixed poses).
+
+Given every acquisition's pose (a path from another estimator, e.g. stop-to-stop scan
+registration), the landmarks are estimated directly, without a filter:
+
+1. every echo pair ``(r1, r2)`` is inverted in the array frame (Fig. 19 / eq. (11) of the
+   CoLOR chapter, :func:`~fusion_center.mapping.models.invert_image` and
+   :func:`~fusion_center.mapping.models.invert_point`) and moved into the world frame; an echo
+   group of the measurement-space association (:mod:`fusion_center.mapping.grouping`, one
+   track within one stop) gives one robust mean image point ``T'`` and point ``p``;
+2. each group is a wall hypothesis (the perpendicular bisector of ``tx`` and ``T'``, normal
+   along ``T' - tx``) and a point-like one (a corner at ``(tx + T') / 2`` or a point at
+   ``p``). A turn on the spot cannot tell them apart; a second stop can: a wall's
+   hypotheses from two stops lie on one line, a corner's or edge's at one position. A group
+   takes the kind that stays consistent with groups from more other stops;
+3. groups of one kind are clustered greedily (most pairs first) into landmarks; each
+   landmark is fitted to all its echo pairs by iteratively reweighted Gauss-Newton with a
+   Cauchy loss (:meth:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother.fit_alone`),
+   every group is re-associated with the landmark whose predicted echoes explain it best
+   (gated per pair), landmarks on the same line or spot are merged
+   (:func:`~fusion_center.mapping.smoothing.merge_duplicates`), and this is repeated;
+4. optionally the path is refined: every stop (a run of acquisitions between drives) gets
+   one rigid correction ``(dx, dy, dyaw)`` about its centre, fitted to its echoes against the
+   current landmarks with a Gaussian prior of the path's expected error (alternated with
+   step 3; the first stop is held: it defines the frame);
+5. the landmarks with enough pairs from at least two stops become a
+   :class:`~fusion_center.mapping.features.SlamMap`
+   (:func:`~fusion_center.mapping.features.build_map`).
+
+The clustering by cross-stop consistency and the per-stop rigid refinement go beyond the
+chapter (a batch relative of its Section 6 mapping; the refinement is a block-coordinate
+bundle adjustment, cf. Triggs et al. 2000, "Bundle adjustment - a modern synthesis").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from fusion_center.mapping.features import LandmarkSet, SlamMap, build_map
+from fusion_center.mapping.models import (
+    CORNER,
+    POINT,
+    WALL,
+    invert_image,
+    invert_point,
+    wall_tangent,
+)
+from fusion_center.mapping.smoothing import (
+    LeastSquaresPathMapSmoother,
+    SmootherConfig,
+    merge_duplicates,
+)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FixedPathConfig:
+    """Parameters of :func:`map_fixed_path` (SI units: m, rad).
+
+    Attributes
+    ----------
+    range_sigma : float
+        Standard deviation of one bistatic range in the fit, m.
+    loss_scale : float
+        Residual, in ``range_sigma``, beyond which the Cauchy loss discounts an echo.
+    min_group_pairs : int
+        Pairs an echo group needs to found or join a landmark hypothesis (the mapper's
+        ``MapperConfig.confirm``; 1 uses every pair, e.g. for coarse turning steps).
+    wall_gate, wall_angle : float
+        Two groups' wall hypotheses are consistent when each one's foot point lies within
+        ``wall_gate`` of the other's line and their normals are within ``wall_angle``.
+    point_gate : float
+        Two groups' point-like hypotheses are consistent within this distance.
+    assoc_gate : float
+        A pair is explained by a landmark only if both its ranges are within this of the
+        landmark's predicted echoes, m.
+    assoc_gate_start : float
+        The gate of the first round; it shrinks geometrically to ``assoc_gate`` in the last
+        (a wider first gate lets the path refinement pull in stops that are further off).
+    fov : float
+        Half-angle around the boresight within which a landmark echoes.
+    min_pairs, min_stops : int
+        Support a landmark needs to be mapped: associated pairs, and distinct stops.
+    rounds : int
+        Association and fit rounds.
+    drive_distance : float
+        A step of the path longer than this starts a new stop, m.
+    merge_dist, merge_angle, merge_point_dist : float
+        Between rounds, walls within ``merge_dist`` and ``merge_angle`` and point-like
+        landmarks within ``merge_point_dist`` are merged.
+    refine_path : bool
+        Fit one rigid correction per stop (step 4 of the module docstring).
+    path_sigma : tuple of float
+        Prior standard deviation of a stop's correction: (m per axis, rad).
+    extent_quantile : float
+        A wall's extent spans these quantiles of its specular points.
+    wall_gap : float
+        Specular points of one wall further apart than this along it split it into segments
+        (``inf``: one segment), m; the map's walls on one line merge only across such gaps
+        (:func:`~fusion_center.mapping.features.build_map`'s ``merge_gap``). It must exceed
+        the spacing of the stops, whose feet on a wall are its only specular points: 2.5 m
+        found more faces with fewer ghosts on room_pillar (stops 0.5-1 m apart) but split
+        every wall of corridor_L_sparse into unsupported pieces, so it is off.
+    min_wall_length : float
+        Shortest wall segment mapped (between its extent quantiles), m: a corner's echoes
+        seen from stops in line with it also fit a short wall through it.
+    overlap_dist, overlap_angle, extend : float
+        :func:`~fusion_center.mapping.features.build_map`'s merging of overlapping walls and
+        longest wall extension.
+    drop_crossed : bool
+        Leave out the mapped walls that the path drives through (a segment between the
+        transmitter's positions at two consecutive stops crosses the wall, 5 cm in from its
+        ends): a real wall is never crossed, and the ghost walls that cross the room (from
+        echoes of several landmarks that happen to fit one line) mostly are (negative
+        information; beyond the chapter). Off: on room_pillar it halves the ghost walls
+        (17 -> 9-12 at the true path) but also drops real faces (10-11 -> 7-8 found),
+        whose walls were extended or merged across the room.
+    fitted_kinds : bool
+        Corner or point as fitted (the better Cauchy cost of the two models over all the
+        landmark's echoes), not by :func:`~fusion_center.mapping.features.build_map`'s
+        geometric rule, which makes an object's convex edge between two of its mapped
+        faces a corner.
+    """
+
+    range_sigma: float = 0.02
+    loss_scale: float = 3.0
+    min_group_pairs: int = 3
+    wall_gate: float = 0.15
+    wall_angle: float = np.radians(5.0)
+    point_gate: float = 0.15
+    assoc_gate: float = 0.15
+    assoc_gate_start: float = 0.15
+    fov: float = np.radians(60.0)
+    min_pairs: int = 8
+    min_stops: int = 2
+    rounds: int = 4
+    drive_distance: float = 0.1
+    merge_dist: float = 0.1
+    merge_angle: float = np.radians(5.0)
+    merge_point_dist: float = 0.1
+    refine_path: bool = False
+    path_sigma: tuple[float, float] = (0.05, np.radians(1.0))
+    extent_quantile: float = 0.05
+    wall_gap: float = np.inf
+    min_wall_length: float = 0.2
+    overlap_dist: float = 0.3
+    overlap_angle: float = np.radians(12.0)
+    extend: float = 1.0
+    fitted_kinds: bool = True
+    drop_crossed: bool = False
+
+    def __post_init__(self) -> None:
+        positive = {
+            "range_sigma": self.range_sigma,
+            "loss_scale": self.loss_scale,
+            "wall_gate": self.wall_gate,
+            "wall_angle": self.wall_angle,
+            "point_gate": self.point_gate,
+            "assoc_gate": self.assoc_gate,
+            "assoc_gate_start": self.assoc_gate_start,
+            "fov": self.fov,
+            "drive_distance": self.drive_distance,
+        }
+        for name, v in positive.items():
+            if not (np.isfinite(v) and v > 0.0):
+                raise ValueError(f"FixedPathConfig.{name} must be > 0, got {v!r}")
+        if not self.wall_gap > 0.0:
+            raise ValueError(f"FixedPathConfig.wall_gap must be > 0, got {self.wall_gap!r}")
+        for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"FixedPathConfig.{name} must be an integer >= 1, got {v!r}")
+        if len(self.path_sigma) != 2 or not all(
+            np.isfinite(s) and s > 0.0 for s in self.path_sigma
+        ):
+            raise ValueError(
+                f"FixedPathConfig.path_sigma must be two values > 0, got {self.path_sigma!r}"
+            )
+        if not 0.0 <= self.extent_quantile < 0.5:
+            raise ValueError(
+                f"FixedPathConfig.extent_quantile must be in [0, 0.5), got {self.extent_quantile!r}"
+            )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FixedPathMap:
+    """Result of :func:`map_fixed_path`.
+
+    Attributes
+    ----------
+    map : SlamMap
+        Walls, corners and points, in the frame of the path (m).
+    poses : ndarray, shape (n, 3)
+        The path the map was built at (the refined one with ``refine_path``), m and rad.
+    kinds, states, pairs, stops : ndarray
+        Every landmark kept after the last round (before the support rule): kind, state
+        (``(alpha, d)`` of a wall, ``(x, y)`` otherwise), associated pairs and distinct stops.
+    stop_corrections : ndarray, shape (s, 3)
+        Rigid correction of every stop (zeros without ``refine_path``).
+    """
+
+    map: SlamMap
+    poses: FloatArray
+    kinds: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    states: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    pairs: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stops: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stop_corrections: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+def _world_array(poses: FloatArray, antennas: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """World tx (n, 2) and rx (n, 2, 2) at robot poses (n, 3)."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    ant = np.einsum("nij,aj->nai", rot, antennas) + poses[:, None, :2]
+    return ant[:, 0], ant[:, 1:]
+
+
+def _rotate(v: FloatArray, yaw: FloatArray) -> FloatArray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], -1)
+
+
+def _group_mean(x: FloatArray, g: IntArray, n: int, trim: float) -> tuple[FloatArray, IntArray]:
+    """Per-group mean of points ``x`` (m, 2) without NaN rows, then again without the points
+    farther than ``trim`` from it (a track that switched echoes for a few acquisitions)."""
+    ok = np.all(np.isfinite(x), 1)
+    mean = np.full((n, 2), np.nan)
+    cnt = np.zeros(n, np.int64)
+    for _ in range(2):
+        cnt = np.bincount(g[ok], minlength=n)
+        sums = np.stack([np.bincount(g[ok], x[ok, i], minlength=n) for i in range(2)], -1)
+        mean = np.where(cnt[:, None] > 0, sums / np.maximum(cnt, 1)[:, None], np.nan)
+        near = np.linalg.norm(x - mean[g], axis=1) <= trim
+        ok = ok & np.where(np.isfinite(near), near, False)
+    return mean, cnt
+
+
+def _symmetric(i: IntArray, j: IntArray, n: int) -> tuple[IntArray, IntArray]:
+    """The pairs ``(i, j)`` with ``i < j`` in both orders plus every ``(i, i)``, sorted by
+    ``i`` (a neighbour list)."""
+    a = np.concatenate([i, j, np.arange(n)])
+    b = np.concatenate([j, i, np.arange(n)])
+    order = np.lexsort((b, a))
+    return a[order], b[order]
+
+
+def _close_pairs(points: list[FloatArray], gate: float) -> tuple[IntArray, IntArray]:
+    """Neighbour list (:func:`_symmetric`) of the items within ``gate`` of each other in any
+    one of the given point sets (k-d trees, so memory grows with the pairs found)."""
+    n = points[0].shape[0]
+    ij = np.concatenate(
+        [cKDTree(p).query_pairs(gate, output_type="ndarray") for p in points]
+        + [np.zeros((0, 2), np.int64)]
+    )
+    key = np.unique(ij[:, 0] * n + ij[:, 1])
+    return _symmetric(key // n, key % n, n)
+
+
+def _predict(
+    kinds: IntArray, states: FloatArray, tx: FloatArray, rx: FloatArray, fov: float, yaw: FloatArray
+) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Predicted ranges (..., 2) of landmarks and whether each can echo (in the beam, a wall
+    in front of the transmitter), broadcast over leading axes (Fig. 19 models)."""
+    smoother = LeastSquaresPathMapSmoother(np.zeros((3, 2)))
+    r, ok, d = smoother._predict(kinds, states, tx, rx)
+    bore = np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    ok = ok & (np.sum(d * bore, -1) >= np.cos(fov))
+    return r, ok
+
+
+def map_fixed_path(
+    pairs: list[npt.ArrayLike],
+    groups: list[npt.ArrayLike] | None,
+    path: npt.ArrayLike,
+    antennas: npt.ArrayLike,
+    config: FixedPathConfig | None = None,
+) -> FixedPathMap:
+    """Walls, corners and points from a robot's echo pairs at known poses (module docstring).
+
+    Parameters
+    ----------
+    pairs : list of array_like, shape (m_i, 2)
+        Echo pairs ``(r1, r2)`` of every acquisition, m (the mapper's front end:
+        :class:`~fusion_center.mapping.echoes.EnvelopePeakEchoExtractor`,
+        :func:`~fusion_center.mapping.echoes.pair_echoes`).
+    groups : list of array_like of int, shape (m_i,), optional
+        Echo-group id of every pair (:class:`~fusion_center.mapping.grouping.KalmanEchoGrouper`);
+        ids need only be unique within a stop (a group never spans a drive);
+        ``None``: every pair is its own group, which needs ``min_group_pairs=1`` (with the
+        default 3 no group can found a landmark and the map is empty).
+    path : array_like, shape (n, 3)
+        ``[x, y, yaw]`` of every acquisition (m, rad), any fixed frame (usually the first
+        pose's); the map comes out in it.
+    antennas : array_like, shape (3, 2)
+        tx, rx1, rx2 in the robot frame (x forward, y left), m.
+    config : FixedPathConfig, optional
+
+    Returns
+    -------
+    FixedPathMap
+        Empty (no walls, corners or points) when no group's hypothesis is confirmed from
+        another stop: always for a path of one stop, whatever ``min_stops``.
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match, non-finite values or a degenerate array (one line).
+    """
+    cfg = config or FixedPathConfig()
+    poses = np.asarray(path, float)
+    if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] == 0:
+        raise ValueError(f"path must have shape (n, 3) with n >= 1, got {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise ValueError("path holds non-finite values")
+    ant = np.asarray(antennas, float)
+    if ant.shape != (3, 2) or not np.all(np.isfinite(ant)):
+        raise ValueError(
+            f"antennas must be finite tx, rx1, rx2 positions, shape (3, 2), got {ant.shape}"
+        )
+    if np.linalg.norm(ant[1] - ant[2]) < 1e-6:
+        raise ValueError("antennas: the two receivers coincide")
+    n = poses.shape[0]
+    if len(pairs) != n:
+        raise ValueError(f"pairs must have one entry per pose ({n}), got {len(pairs)}")
+    if groups is not None and len(groups) != n:
+        raise ValueError(f"groups must have one entry per pose ({n}), got {len(groups)}")
+    zs = [np.asarray(p, float).reshape(-1, 2) for p in pairs]
+    z = np.concatenate([*zs, np.zeros((0, 2))])
+    if not np.all(np.isfinite(z)):
+        raise ValueError("pairs hold non-finite ranges")
+    acq = np.repeat(np.arange(n), [x.shape[0] for x in zs])
+    if groups is None:
+        gid = np.arange(z.shape[0])
+    else:
+        gs = [np.asarray(g).reshape(-1) for g in groups]
+        if any(g.size != x.shape[0] for g, x in zip(gs, zs, strict=True)):
+            raise ValueError("groups must have one id per pair")
+        try:
+            g_all = np.concatenate([*gs, np.zeros(0)]).astype(float)
+        except (TypeError, ValueError):
+            raise ValueError("groups must hold integer ids") from None
+        if not np.all(np.isfinite(g_all)) or np.any(g_all != np.round(g_all)):
+            raise ValueError("groups must hold finite integer ids")
+    step = np.r_[0.0, np.hypot(*np.diff(poses[:, :2], axis=0).T)]
+    stop_of = np.cumsum(step > cfg.drive_distance).astype(np.int64)
+    if groups is not None:
+        # a group is one track within one stop: keyed by (stop, id), so ids that restart at
+        # every stop (a new grouper per stop) do not merge the groups of different stops
+        key = np.column_stack([stop_of[acq], g_all.astype(np.int64)])
+        gid = np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
+    empty = FixedPathMap(
+        map=SlamMap(), poses=poses.copy(), stop_corrections=np.zeros((stop_of[-1] + 1, 3))
+    )
+    if z.shape[0] == 0:
+        return empty
+    mapper = _FixedPathMapper(cfg, ant, poses, z, acq, gid, stop_of)
+    return mapper.run()
+
+
+class _FixedPathMapper:
+    """The state of one :func:`map_fixed_path` run."""
+
+    def __init__(
+        self,
+        cfg: FixedPathConfig,
+        ant: FloatArray,
+        poses: FloatArray,
+        z: FloatArray,
+        acq: IntArray,
+        gid: IntArray,
+        stop_of: IntArray,
+    ) -> None:
+        self.cfg = cfg
+        self.ant = ant
+        self.path0 = poses
+        self.poses = poses.copy()
+        self.z, self.acq, self.gid = z, acq, gid
+        self.n_groups = int(gid.max()) + 1
+        self.stop_of = stop_of
+        self.n_stops = int(stop_of[-1]) + 1
+        self.pair_stop = stop_of[acq]
+        self.corr = np.zeros((self.n_stops, 3))
+        self.fitter = LeastSquaresPathMapSmoother(
+            ant, SmootherConfig(range_sigma=cfg.range_sigma, loss_scale=cfg.loss_scale)
+        )
+        self.rx_body = ant[1:] - ant[0]
+        # the rotation centre of a stop's correction: its mean transmitter position
+        tx, _ = _world_array(poses, ant)
+        cnt = np.bincount(stop_of, minlength=self.n_stops)
+        self.centre = np.stack(
+            [np.bincount(stop_of, tx[:, i], minlength=self.n_stops) / cnt for i in range(2)], -1
+        )
+
+    # --- hypotheses ---------------------------------------------------------------------------
+
+    def hypotheses(self) -> tuple[IntArray, FloatArray, IntArray]:
+        """Kinds, initial states and group support of the landmarks found by cross-stop
+        consistency of the groups' hypotheses (steps 1-3 of the module docstring)."""
+        cfg = self.cfg
+        tx, _ = _world_array(self.poses, self.ant)
+        yaw = self.poses[self.acq, 2]
+        tx_p = tx[self.acq]
+        img = tx_p + _rotate(invert_image(self.z, self.rx_body), yaw)
+        pt = tx_p + _rotate(invert_point(self.z, self.rx_body), yaw)
+        g = self.gid
+        ng = self.n_groups
+        img_g, cnt = _group_mean(img, g, ng, 2 * cfg.point_gate)
+        pt_g, _ = _group_mean(pt, g, ng, 2 * cfg.point_gate)
+        tx_g, _ = _group_mean(tx_p, g, ng, np.inf)
+        stop_g = np.zeros(ng, np.int64)
+        stop_g[g] = self.pair_stop  # a group lies within one stop (keyed by stop and id)
+        use = (cnt >= cfg.min_group_pairs) & np.all(np.isfinite(img_g), 1)
+        use &= np.all(np.isfinite(pt_g), 1)
+        idx = np.flatnonzero(use)
+        if idx.size == 0:
+            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, np.int64)
+        foot = 0.5 * (tx_g[idx] + img_g[idx])  # wall's foot point, also the corner
+        v = img_g[idx] - tx_g[idx]
+        nrm = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        pnt = pt_g[idx]
+        st = stop_g[idx]
+        wall_nb = self._wall_neighbours(foot, nrm)
+        point_nb = _close_pairs([foot, pnt], cfg.point_gate)
+        w_sup = self._other_stops(wall_nb, st)
+        p_sup = self._other_stops(point_nb, st)
+        is_wall = (w_sup >= p_sup) & (w_sup > 0)
+        is_pt = (p_sup > w_sup) & (p_sup > 0)
+        size = cnt[idx].astype(float)
+        label = self._greedy(size, is_wall, is_pt, wall_nb, point_nb)
+        # every cluster's state: the pair-weighted mean of its members' hypotheses
+        on = label >= 0
+        nl = int(label.max()) + 1 if np.any(on) else 0
+        lab, wgt = label[on], size[on]
+        tot = np.bincount(lab, wgt, minlength=nl)
+
+        def mean(x: FloatArray) -> FloatArray:
+            return np.stack([np.bincount(lab, wgt * x[on, k], minlength=nl) for k in range(2)], -1)
+
+        kind = np.where(is_wall[on], WALL, CORNER)
+        kinds = np.zeros(nl, np.int64)
+        kinds[lab] = kind
+        nn = mean(nrm) / tot[:, None]
+        alpha = np.arctan2(nn[:, 1], nn[:, 0])
+        d = np.bincount(
+            lab, wgt * np.sum(foot[on] * np.stack([np.cos(alpha), np.sin(alpha)], -1)[lab], 1), nl
+        )
+        states = np.where(
+            (kinds == WALL)[:, None],
+            np.column_stack([alpha, d / tot]),
+            mean(0.5 * (foot + pnt)) / tot[:, None],
+        )
+        return kinds, states, np.bincount(lab, minlength=nl).astype(np.int64)
+
+    def _wall_neighbours(self, foot: FloatArray, nrm: FloatArray) -> tuple[IntArray, IntArray]:
+        """Every ordered pair ``(i, j)`` (itself included) of groups whose wall hypotheses
+        agree: normals within ``wall_angle`` and each foot point within ``wall_gate`` of the
+        other's line. Candidates come from a k-d tree on ``(n_x, n_y, s d)`` (``d`` the line's
+        offset from the feet's centroid) in the max norm, with ``s`` chosen so that every
+        agreeing pair is a candidate: ``|n_i - n_j| <= c = 2 sin(wall_angle / 2)`` and
+        ``|d_i - d_j| <= wall_gate + c R`` (``R`` the largest foot distance from the
+        centroid); the exact test then runs on the candidates only."""
+        cfg = self.cfg
+        f = foot - foot.mean(0)
+        c = 2.0 * np.sin(0.5 * cfg.wall_angle)
+        radius = float(np.max(np.linalg.norm(f, axis=1)))
+        d = np.sum(nrm * f, 1)
+        scale = c / (cfg.wall_gate + c * radius)
+        tree = cKDTree(np.column_stack([nrm, scale * d]))
+        ij = tree.query_pairs(c * (1.0 + 1e-9), p=np.inf, output_type="ndarray")
+        i, j = ij[:, 0], ij[:, 1]
+        ok = np.sum(nrm[i] * nrm[j], 1) >= np.cos(cfg.wall_angle)
+        ok &= np.abs(np.sum(nrm[i] * (f[j] - f[i]), 1)) <= cfg.wall_gate
+        ok &= np.abs(np.sum(nrm[j] * (f[i] - f[j]), 1)) <= cfg.wall_gate
+        return _symmetric(i[ok], j[ok], foot.shape[0])
+
+    def _other_stops(self, nb: tuple[IntArray, IntArray], st: IntArray) -> IntArray:
+        """How many stops other than its own hold a neighbour of every group."""
+        i, j = nb
+        other = st[i] != st[j]
+        ns = int(st.max()) + 1
+        key = np.unique(i[other] * ns + st[j[other]])  # one per (group, other stop)
+        return np.bincount(key // ns, minlength=st.size)
+
+    @staticmethod
+    def _greedy(
+        size: FloatArray,
+        is_wall: npt.NDArray[np.bool_],
+        is_pt: npt.NDArray[np.bool_],
+        wall_nb: tuple[IntArray, IntArray],
+        point_nb: tuple[IntArray, IntArray],
+    ) -> IntArray:
+        """Cluster of every group (-1: none), greedily, most pairs first: each seed takes
+        the free groups of its kind that agree with it (of any stop). The loop runs once per
+        cluster, over the seed's neighbours only."""
+        ptr = {}
+        for key, (i, j) in (("w", wall_nb), ("p", point_nb)):
+            ptr[key] = (np.searchsorted(i, np.arange(size.size + 1)), j)
+        label = np.full(size.size, -1)
+        free = is_wall | is_pt
+        k = 0
+        for s in np.argsort(-size):
+            if not free[s]:
+                continue
+            wall = bool(is_wall[s])
+            start, nbr = ptr["w" if wall else "p"]
+            cand = nbr[start[s] : start[s + 1]]
+            members = cand[free[cand] & (is_wall[cand] if wall else is_pt[cand])]
+            label[members] = k
+            label[s] = k
+            free[members] = False
+            free[s] = False
+            k += 1
+        return label
+
+    # --- association and fit ------------------------------------------------------------------
+
+    def associate(self, kinds: IntArray, states: FloatArray, gate: float) -> IntArray:
+        """Landmark of every pair (-1: none), whole echo groups at once: each group goes to
+        the landmark whose predicted echoes explain its pairs best (clipped squared
+        residuals, each range gated at ``gate``, m)."""
+        cfg = self.cfg
+        m = self.z.shape[0]
+        nl = kinds.size
+        if nl == 0:
+            return np.full(m, -1)
+        tx, rx = _world_array(self.poses, self.ant)
+        gate2 = (gate / cfg.range_sigma) ** 2
+        cost = np.empty((m, nl))
+        for a in range(0, m, 1024):
+            b = min(a + 1024, m)
+            ac = self.acq[a:b]
+            r, ok = _predict(
+                kinds[None, :],
+                states[None, :, :],
+                tx[ac, None, :],
+                rx[ac, None, :, :],
+                cfg.fov,
+                self.poses[ac, 2][:, None],
+            )
+            res = np.abs(self.z[a:b, None, :] - r) / cfg.range_sigma
+            inside = ok & np.all(res**2 <= gate2, -1)
+            cost[a:b] = np.where(inside, np.minimum(np.sum(res**2, -1), 2 * gate2), np.inf)
+        clipped = np.minimum(cost, 2 * gate2)
+        group_cost = np.zeros((self.n_groups, nl))
+        np.add.at(group_cost, self.gid, clipped)
+        best = np.argmin(group_cost, 1)
+        lm = best[self.gid]
+        # a group no landmark explains better than clutter stays out
+        none = group_cost[np.arange(self.n_groups), best] >= 2 * gate2 * np.bincount(
+            self.gid, minlength=self.n_groups
+        )
+        lm = np.where(np.isfinite(cost[np.arange(m), lm]) & ~none[self.gid], lm, -1)
+        return lm
+
+    def fit(self, kinds: IntArray, states: FloatArray, lm: IntArray) -> tuple[IntArray, FloatArray]:
+        """Fit every landmark to its pairs at the current poses; point-like landmarks take
+        the better of corner and point (Cauchy cost)."""
+        tx, rx = _world_array(self.poses, self.ant)
+        used = lm >= 0
+        li, z, ac = lm[used], self.z[used], self.acq[used]
+        states = states.copy()
+        kinds = kinds.copy()
+        for kind in (WALL, CORNER):
+            sel = (kinds == WALL) if kind == WALL else (kinds != WALL)
+            idx = np.flatnonzero(sel)
+            if idx.size == 0:
+                continue
+            local = np.full(kinds.size, -1)
+            local[idx] = np.arange(idx.size)
+            on = sel[li]
+            lml = local[li[on]]
+            if kind == WALL:
+                st, _ = self.fitter.fit_alone(WALL, states[idx], lml, z[on], tx[ac[on]], rx[ac[on]])
+                states[idx] = st
+                continue
+            st_c, c_c = self.fitter.fit_alone(
+                CORNER, states[idx], lml, z[on], tx[ac[on]], rx[ac[on]]
+            )
+            st_p, c_p = self.fitter.fit_alone(
+                POINT, states[idx], lml, z[on], tx[ac[on]], rx[ac[on]]
+            )
+            corner = c_c <= c_p
+            states[idx] = np.where(corner[:, None], st_c, st_p)
+            kinds[idx] = np.where(corner, CORNER, POINT)
+        return kinds, states
+
+    def support(self, n_lm: int, lm: IntArray) -> tuple[IntArray, IntArray]:
+        """Associated pairs and distinct stops of every landmark."""
+        used = lm >= 0
+        pairs = np.bincount(lm[used], minlength=n_lm)
+        if not np.any(used):
+            return pairs, np.zeros(n_lm, np.int64)
+        key = np.unique(np.column_stack([lm[used], self.pair_stop[used]]), axis=0)
+        return pairs, np.bincount(key[:, 0], minlength=n_lm)
+
+    # --- path refinement ----------------------------------------------------------------------
+
+    def corrected_poses(self, corr: FloatArray) -> FloatArray:
+        """The given path with every stop's rigid correction about its centre."""
+        p = self.path0
+        c = corr[self.stop_of]
+        ctr = self.centre[self.stop_of]
+        # the transmitter rotates about the stop's centre; the robot origin moves with it
+        tx, _ = _world_array(p, self.ant)
+        new_tx = ctr + _rotate(tx - ctr, c[:, 2]) + c[:, :2]
+        yaw = p[:, 2] + c[:, 2]
+        origin = new_tx - _rotate(np.broadcast_to(self.ant[0], (p.shape[0], 2)), yaw)
+        return np.column_stack([origin, yaw])
+
+    def refine(
+        self, kinds: IntArray, states: FloatArray, lm: IntArray, iterations: int = 6
+    ) -> FloatArray:
+        """Joint Gauss-Newton over every stop's rigid correction and every landmark (bundle
+        adjustment at the associations ``lm``): Cauchy-weighted echoes (iteratively
+        reweighted), a Gaussian prior ``path_sigma`` on the corrections, the first stop
+        held. The normal equations are dense (3 per stop + 2 per landmark: a few hundred
+        unknowns); the Jacobian comes from central differences, vectorised over all pairs
+        (a pair depends on one stop and one landmark only). Returns the landmark states;
+        the corrections and poses are updated in place."""
+        cfg = self.cfg
+        used = lm >= 0
+        li, z, ac = lm[used], self.z[used], self.acq[used]
+        m = z.shape[0]
+        if m == 0:
+            return states
+        stp = self.stop_of[ac]
+        ns, nl = self.n_stops, kinds.size
+        n_pose = 3 * (ns - 1)
+        n_all = n_pose + 2 * nl
+        prior = 1.0 / np.array([cfg.path_sigma[0], cfg.path_sigma[0], cfg.path_sigma[1]]) ** 2
+        c2 = cfg.loss_scale**2
+        h = np.array([1e-4, 1e-4, 1e-5])
+        # unknowns touched by each pair: its stop's 3 (a dummy past the end for the first
+        # stop, which is held) and its landmark's 2
+        cols = np.empty((m, 5), np.int64)
+        cols[:, :3] = np.where(stp[:, None] > 0, 3 * (stp[:, None] - 1) + np.arange(3), n_all)
+        cols[:, 3:] = n_pose + 2 * li[:, None] + np.arange(2)
+        st = states.copy()
+
+        def ranges(corr: FloatArray, st_: FloatArray) -> FloatArray:
+            p = self.corrected_poses(corr)[ac]
+            tx, rx = _world_array(p, self.ant)
+            r, _ = _predict(kinds[li], st_[li], tx, rx, np.pi, p[:, 2])
+            return r
+
+        for _ in range(iterations):
+            r0 = ranges(self.corr, st)
+            res = (z - r0) / cfg.range_sigma  # (m, 2)
+            w = 1.0 / (1.0 + res**2 / c2)
+            jac = np.zeros((m, 2, 5))
+            for j in range(3):
+                d = np.zeros(3)
+                d[j] = h[j]
+                jac[:, :, j] = (ranges(self.corr + d, st) - ranges(self.corr - d, st)) / (2 * h[j])
+            for j in range(2):
+                d = np.zeros(2)
+                d[j] = 1e-5
+                jac[:, :, 3 + j] = (ranges(self.corr, st + d) - ranges(self.corr, st - d)) / 2e-5
+            jac /= cfg.range_sigma
+            big = np.zeros((n_all + 1, n_all + 1))
+            grad = np.zeros(n_all + 1)
+            np.add.at(
+                big,
+                (cols[:, :, None], cols[:, None, :]),
+                np.einsum("mj,mjk,mjl->mkl", w, jac, jac),
+            )
+            np.add.at(grad, cols, np.einsum("mj,mjk,mj->mk", w, jac, res))
+            big, grad = big[:n_all, :n_all], grad[:n_all]
+            free = self.corr[1:].reshape(-1)
+            big[np.arange(n_pose), np.arange(n_pose)] += np.tile(prior, ns - 1)
+            grad[:n_pose] -= np.tile(prior, ns - 1) * free
+            # a landmark seen from one pose only is not determined along its echo's circle:
+            # a little damping keeps the system regular
+            diag = np.arange(n_pose, n_all)
+            big[diag, diag] += 1e-3 * big[diag, diag] + 1e-6
+            delta = np.linalg.solve(big, grad)
+            self.corr[1:] += delta[:n_pose].reshape(-1, 3)
+            step = delta[n_pose:].reshape(-1, 2)
+            # a landmark step of more than 0.3 m (or rad) is a poor linearisation
+            norm = np.linalg.norm(step, axis=1, keepdims=True)
+            st += step * np.minimum(1.0, 0.3 / np.maximum(norm, 1e-12))
+        self.poses = self.corrected_poses(self.corr)
+        return st
+
+    # --- the run ------------------------------------------------------------------------------
+
+    def empty(self) -> FixedPathMap:
+        """The map without landmarks (no group was consistent across stops)."""
+        return FixedPathMap(
+            map=SlamMap(), poses=self.poses.copy(), stop_corrections=self.corr.copy()
+        )
+
+    def run(self) -> FixedPathMap:
+        cfg = self.cfg
+        kinds, states, _ = self.hypotheses()
+        if kinds.size == 0:
+            # echoes, but no hypothesis another stop confirms (one stop, or groups too small)
+            return self.empty()
+        lm = np.full(self.z.shape[0], -1)
+        ratio = cfg.assoc_gate / cfg.assoc_gate_start
+        for rnd in range(cfg.rounds):
+            if kinds.size == 0:
+                break
+            gate = cfg.assoc_gate_start * ratio ** (rnd / max(cfg.rounds - 1, 1))
+            lm = self.associate(kinds, states, gate)
+            kinds, states = self.fit(kinds, states, lm)
+            if cfg.refine_path and self.n_stops > 1:
+                # only landmarks that would be mapped pull the stops (a ghost seen from one
+                # stop explains clutter, and at the wrong pose it holds a stop there)
+                pairs, stops = self.support(kinds.size, lm)
+                strong = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
+                states = self.refine(kinds, states, np.where(strong[np.maximum(lm, 0)], lm, -1))
+            if rnd + 1 < cfg.rounds:
+                pairs, _ = self.support(kinds.size, lm)
+                keep = pairs > 0
+                kinds, states = kinds[keep], states[keep]
+                kinds, states = merge_duplicates(
+                    kinds,
+                    states,
+                    pairs[keep],
+                    wall_dist=cfg.merge_dist,
+                    wall_angle=cfg.merge_angle,
+                    point_dist=cfg.merge_point_dist,
+                )
+        if kinds.size == 0:
+            return self.empty()
+        lm = self.associate(kinds, states, cfg.assoc_gate)
+        kinds, states = self.fit(kinds, states, lm)
+        pairs, stops = self.support(kinds.size, lm)
+        the_map = build_map(
+            self.landmark_set(kinds, states, lm, pairs, stops),
+            merge_gap=cfg.wall_gap,
+            overlap_dist=cfg.overlap_dist,
+            overlap_angle=cfg.overlap_angle,
+            extend=cfg.extend,
+            fitted_kinds=cfg.fitted_kinds,
+        )
+        if cfg.drop_crossed and len(the_map.walls) and self.n_stops > 1:
+            keep = ~self.crossed(the_map.walls)
+            the_map = SlamMap(
+                walls=the_map.walls[keep], corners=the_map.corners, points=the_map.points
+            )
+        return FixedPathMap(
+            map=the_map,
+            poses=self.poses.copy(),
+            kinds=kinds,
+            states=states,
+            pairs=pairs.astype(np.int64),
+            stops=stops.astype(np.int64),
+            stop_corrections=self.corr.copy(),
+        )
+
+    def crossed(self, walls: FloatArray) -> npt.NDArray[np.bool_]:
+        """Which wall segments ``[x1, y1, x2, y2]`` (w, 4) a drive between consecutive stops
+        crosses (the transmitter's mean positions; the walls shortened by 5 cm at each end)."""
+        tx, _ = _world_array(self.poses, self.ant)
+        cnt = np.bincount(self.stop_of, minlength=self.n_stops)
+        ctr = np.stack(
+            [np.bincount(self.stop_of, tx[:, i], minlength=self.n_stops) / cnt for i in range(2)],
+            -1,
+        )
+        a, b = ctr[:-1], ctr[1:]  # drives (d, 2)
+        p, q = walls[:, :2], walls[:, 2:]
+        e = q - p
+        length = np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-9)
+        shrink = np.minimum(0.05, 0.5 * length) * e / length
+        p, q = p + shrink, q - shrink
+
+        def side(o: FloatArray, u: FloatArray, v: FloatArray) -> FloatArray:
+            # sign of the cross product (u - o) x (v - o), broadcast (w, d)
+            return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (
+                v[..., 0] - o[..., 0]
+            )
+
+        pw, qw = p[:, None, :], q[:, None, :]
+        ad, bd = a[None, :, :], b[None, :, :]
+        cross = (side(pw, qw, ad) * side(pw, qw, bd) < 0) & (
+            side(ad, bd, pw) * side(ad, bd, qw) < 0
+        )
+        return np.any(cross, axis=1)
+
+    def landmark_set(
+        self, kinds: IntArray, states: FloatArray, lm: IntArray, pairs: IntArray, stops: IntArray
+    ) -> LandmarkSet:
+        """The landmarks with enough support. A wall's specular points (the feet of the
+        transmitter's perpendiculars at its pairs' poses) are split where consecutive ones
+        along the line are more than ``wall_gap`` apart: each run is a wall segment of its
+        own (two collinear faces, or a face and echoes far along its line that another
+        landmark made), with its own support; its extent spans the ``extent_quantile``
+        quantiles of its specular points."""
+        cfg = self.cfg
+        ok = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
+        wall_st = np.zeros((0, 2))
+        wall_ext = np.zeros((0, 2))
+        wall_hits = np.zeros(0)
+        on = (lm >= 0) & (kinds[np.maximum(lm, 0)] == WALL) & ok[np.maximum(lm, 0)]
+        if np.any(on):
+            tx, _ = _world_array(self.poses[self.acq[on]], self.ant)
+            li = lm[on]
+            stop = self.pair_stop[on]
+            w = states[li]
+            nrm = np.stack([np.cos(w[:, 0]), np.sin(w[:, 0])], -1)
+            foot = tx + (w[:, 1] - np.sum(nrm * tx, -1))[:, None] * nrm
+            t = wall_tangent(w, foot)
+            order = np.lexsort((t, li))
+            li, t, stop = li[order], t[order], stop[order]
+            new_seg = np.r_[True, (np.diff(li) != 0) | (np.diff(t) > cfg.wall_gap)]
+            seg = np.cumsum(new_seg) - 1
+            ns = int(seg[-1]) + 1
+            start = np.flatnonzero(new_seg)
+            count = np.bincount(seg, minlength=ns)
+            seg_stops = np.bincount(
+                np.unique(np.column_stack([seg, stop]), axis=0)[:, 0], minlength=ns
+            )
+            q = cfg.extent_quantile
+            lo = start + np.floor(q * (count - 1)).astype(int)
+            hi = start + np.ceil((1.0 - q) * (count - 1)).astype(int)
+            keep = (count >= cfg.min_pairs) & (seg_stops >= cfg.min_stops)
+            keep &= t[hi] - t[lo] >= cfg.min_wall_length
+            wall_st = states[li[start[keep]]]
+            wall_ext = np.column_stack([t[lo[keep]], t[hi[keep]]])
+            wall_hits = count[keep].astype(float)
+        pt = ok & (kinds != WALL)
+        return LandmarkSet(
+            walls=wall_st,
+            wall_extent=wall_ext,
+            wall_hits=wall_hits,
+            points=states[pt],
+            point_is_corner=kinds[pt] == CORNER,
+            point_hits=pairs[pt].astype(float),
+        )

@@ -1,0 +1,278 @@
+"""Batch mapping at a known path (fixed_path.py) on the synthetic room's echoes."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from fusion_center.mapping.fixed_path import FixedPathConfig, map_fixed_path
+from fusion_center.mapping.grouping import KalmanEchoGrouper
+from fusion_center.mapping.synthetic import echo_pairs, rectangle_room, stop_and_turn_poses
+
+ANTENNAS = np.array([[0.0, 0.0], [0.0, 0.5], [0.0, -0.5]])
+STOPS = [[1.5, 1.5], [3.0, 1.2], [4.5, 1.5], [4.5, 3.5], [3.0, 3.8], [1.5, 3.5]]
+TURN = 60
+
+
+def _echoes(seed: int = 1):
+    """The room's echo pairs at every pose of a stop-and-turn path, grouped as the mapper
+    groups them (Kalman tracks, reset at every drive)."""
+    room = rectangle_room()
+    poses = stop_and_turn_poses(STOPS, TURN, np.radians(6.0))
+    rng = np.random.default_rng(seed)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+    grouper = KalmanEchoGrouper()
+    ids = []
+    for i, z in enumerate(pairs):
+        if i % TURN == 0:
+            grouper.reset()
+        ids.append(grouper.step(z))
+    return room, poses, pairs, ids
+
+
+def _seg_dist(seg: np.ndarray, p: np.ndarray) -> np.ndarray:
+    a, b = seg[:2], seg[2:]
+    e = b - a
+    t = np.clip((p - a) @ e / (e @ e), 0.0, 1.0)
+    return np.linalg.norm(a + t[:, None] * e - p, axis=1)
+
+
+def _wall_errors(room, walls: np.ndarray) -> np.ndarray:
+    """For every true wall, the largest distance of the closest mapped wall's end points
+    from its line (inf if no mapped wall runs along it)."""
+    out = []
+    for w in room.walls:
+        e = (w[2:] - w[:2]) / np.linalg.norm(w[2:] - w[:2])
+        n = np.array([-e[1], e[0]])
+        best = np.inf
+        for m in walls:
+            d = np.abs((m.reshape(2, 2) - w[:2]) @ n)
+            along = (m.reshape(2, 2) - w[:2]) @ e
+            if abs((m[2:] - m[:2]) @ n) < 0.2 * np.linalg.norm(m[2:] - m[:2]) and np.any(
+                (along > 0) & (along < np.linalg.norm(w[2:] - w[:2]))
+            ):
+                best = min(best, float(d.max()))
+        out.append(best)
+    return np.array(out)
+
+
+def test_the_room_is_mapped_at_its_true_path() -> None:
+    room, poses, pairs, ids = _echoes()
+    res = map_fixed_path(pairs, ids, poses, ANTENNAS)
+    m = res.map
+    # every wall found, along its true line within 3 cm at both ends (1 cm echoes)
+    err = _wall_errors(room, m.walls)
+    assert np.all(err < 0.03), err
+    assert len(m.walls) == 4
+    # corners and the two point scatterers: each within 5 cm of a mapped corner / point
+    found = np.vstack([m.corners, m.points])
+    d_c = np.linalg.norm(room.corners[:, None] - found[None], axis=-1).min(1)
+    d_p = np.linalg.norm(room.points[:, None] - m.points[None], axis=-1).min(1)
+    assert np.all(d_c < 0.05), d_c
+    assert np.all(d_p < 0.05), d_p
+    # nothing mapped that is not in the room
+    ghosts = [
+        p
+        for p in found
+        if min(
+            np.linalg.norm(room.corners - p, axis=1).min(),
+            np.linalg.norm(room.points - p, axis=1).min(),
+        )
+        > 0.2
+    ]
+    assert not ghosts
+    assert np.array_equal(res.poses, poses) and not np.any(res.stop_corrections)
+
+
+def test_path_refinement_pulls_perturbed_stops_back() -> None:
+    room, poses, pairs, ids = _echoes(2)
+    rng = np.random.default_rng(5)
+    off = rng.normal(0.0, 1.0, (len(STOPS), 3)) * [0.05, 0.05, np.radians(1.5)]
+    off[0] = 0.0
+    bad = poses + np.repeat(off, TURN, axis=0)
+    cfg = FixedPathConfig(refine_path=True, path_sigma=(0.1, np.radians(3.0)))
+    res = map_fixed_path(pairs, ids, bad, ANTENNAS, cfg)
+    before = np.sqrt(np.mean(np.sum((bad[:, :2] - poses[:, :2]) ** 2, 1)))
+    after = np.sqrt(np.mean(np.sum((res.poses[:, :2] - poses[:, :2]) ** 2, 1)))
+    yaw_after = np.abs(res.poses[:, 2] - poses[:, 2]).max()
+    assert before > 0.04
+    assert after < 0.4 * before, (before, after)
+    assert yaw_after < np.radians(0.5)
+    assert np.all(_wall_errors(room, res.map.walls) < 0.04)
+    # without the refinement the same path leaves the walls further off
+    plain = map_fixed_path(pairs, ids, bad, ANTENNAS)
+    assert _wall_errors(room, plain.map.walls).max() > _wall_errors(room, res.map.walls).max()
+
+
+def test_no_echoes_give_an_empty_map() -> None:
+    poses = stop_and_turn_poses(STOPS[:2], 5, 0.1)
+    res = map_fixed_path([np.zeros((0, 2))] * len(poses), None, poses, ANTENNAS)
+    assert len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
+
+
+def test_group_ids_need_only_be_unique_within_a_stop() -> None:
+    _, poses, pairs, ids = _echoes()
+    ref = map_fixed_path(pairs, ids, poses, ANTENNAS).map
+    # the same tracks, numbered from 0 again at every stop
+    restart = []
+    for i, g in enumerate(ids):
+        first = min(int(np.min(x)) for x in ids[i - i % TURN : i - i % TURN + TURN] if len(x))
+        restart.append(np.asarray(g) - first)
+    assert restart[TURN].size and restart[TURN].min() == 0
+    res = map_fixed_path(pairs, restart, poses, ANTENNAS).map
+    assert len(res.walls) == len(ref.walls) == 4
+    assert len(res.corners) == len(ref.corners)
+    assert len(res.points) == len(ref.points)
+    np.testing.assert_allclose(res.walls, ref.walls, atol=1e-9)
+
+
+def test_every_pair_its_own_group_keeps_memory_linear() -> None:
+    """groups=None with min_group_pairs=1: the cross-stop consistency must not build dense
+    arrays over all pairs of groups (9k pairs needed 6 GB so)."""
+    room = rectangle_room()
+    poses = stop_and_turn_poses(STOPS, 180, np.radians(2.0))
+    rng = np.random.default_rng(3)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+    n_pairs = sum(len(p) for p in pairs)
+    assert n_pairs > 1500
+    tracemalloc.start()
+    try:
+        res = map_fixed_path(pairs, None, poses, ANTENNAS, FixedPathConfig(min_group_pairs=1))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # dense (G, G) float arrays alone would take 8 G^2 bytes each
+    assert peak < 8 * n_pairs**2, (peak, n_pairs)
+    assert len(res.map.walls) == 4
+
+
+def _is_empty(res) -> bool:
+    return len(res.map.walls) == len(res.map.corners) == len(res.map.points) == 0
+
+
+def test_echoes_without_a_confirmed_hypothesis_give_an_empty_map() -> None:
+    _, poses, pairs, ids = _echoes()
+    # every pair its own group: below the default min_group_pairs, no hypothesis at all
+    assert _is_empty(map_fixed_path(pairs, None, poses, ANTENNAS))
+    # one stop: no other stop can confirm a hypothesis, whatever min_stops
+    one = slice(0, TURN)
+    assert _is_empty(map_fixed_path(pairs[one], ids[one], poses[one], ANTENNAS))
+    cfg = FixedPathConfig(min_stops=1)
+    assert _is_empty(map_fixed_path(pairs[one], ids[one], poses[one], ANTENNAS, cfg))
+    # one pose with one pair
+    assert _is_empty(map_fixed_path([np.array([[4.0, 4.0]])], None, np.zeros((1, 3)), ANTENNAS))
+
+
+_one_pair = [np.array([[3.0, 3.1]]), np.zeros((0, 2)), np.zeros((0, 2))]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"path": np.zeros((3, 2))}, "path must have shape"),
+        ({"path": np.zeros((0, 3)), "pairs": []}, "path must have shape"),
+        ({"path": np.full((3, 3), np.nan)}, "non-finite"),
+        ({"antennas": np.zeros((2, 2))}, "antennas"),
+        ({"antennas": np.zeros((3, 2))}, "receivers coincide"),
+        ({"pairs": [np.zeros((0, 2))] * 2}, "one entry per pose"),
+        ({"groups": [np.zeros(1)] * 3}, "one id per pair"),
+        ({"pairs": _one_pair, "groups": [np.array([np.nan]), [], []]}, "integer ids"),
+        ({"pairs": _one_pair, "groups": [np.array([1.5]), [], []]}, "integer ids"),
+        ({"pairs": _one_pair, "groups": [np.array(["a"]), [], []]}, "integer ids"),
+        ({"pairs": [np.array([[np.inf, 2.0]])] + [np.zeros((0, 2))] * 2}, "non-finite ranges"),
+    ],
+)
+def test_bad_input_is_refused_in_one_line(kwargs, match) -> None:
+    args = {
+        "pairs": [np.zeros((0, 2))] * 3,
+        "groups": None,
+        "path": np.zeros((3, 3)),
+        "antennas": ANTENNAS,
+    }
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match) as err:
+        map_fixed_path(args["pairs"], args["groups"], args["path"], args["antennas"])
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"range_sigma": 0.0},
+        {"rounds": 0},
+        {"min_stops": 1.5},
+        {"path_sigma": (0.1,)},
+        {"extent_quantile": 0.5},
+    ],
+)
+def test_bad_configuration_is_refused(kwargs) -> None:
+    with pytest.raises(ValueError, match="FixedPathConfig"):
+        FixedPathConfig(**kwargs)
+
+
+def test_fitted_kinds_keep_an_edge_between_two_faces_a_point() -> None:
+    from fusion_center.mapping.features import LandmarkSet, build_map
+
+    # two faces of a box meeting at (2, 1) and a point-like landmark there, fitted as a point
+    lm = LandmarkSet(
+        walls=np.array([[0.0, 2.0], [np.pi / 2, 1.0]]),
+        wall_extent=np.array([[1.0, 3.0], [2.0, 4.0]]),
+        wall_hits=np.array([20.0, 20.0]),
+        points=np.array([[2.0, 1.0]]),
+        point_is_corner=np.array([False]),
+        point_hits=np.array([20.0]),
+    )
+    assert len(build_map(lm).corners) == 1  # the geometric rule: a junction is a corner
+    m = build_map(lm, fitted_kinds=True)
+    assert len(m.corners) == 0 and np.allclose(m.points, [[2.0, 1.0]])
+
+
+def test_collinear_faces_with_a_gap_stay_two_walls() -> None:
+    from fusion_center.mapping.synthetic import SyntheticRoom
+
+    base = rectangle_room()
+    # the wall y = 0 has a 2 m doorway in its middle: two faces on one line
+    walls = np.vstack([[[0.0, 0.0, 2.0, 0.0], [4.0, 0.0, 6.0, 0.0]], base.walls[1:]])
+    room = SyntheticRoom(walls=walls, corners=base.corners, points=base.points)
+    poses = stop_and_turn_poses(STOPS, TURN, np.radians(6.0))
+    rng = np.random.default_rng(3)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+
+    def crosses_doorway(cfg: FixedPathConfig) -> bool:
+        w = map_fixed_path(pairs, None, poses, ANTENNAS, cfg).map.walls
+        on_line = np.abs(w[:, 1]) + np.abs(w[:, 3]) < 0.1
+        lo, hi = np.minimum(w[:, 0], w[:, 2]), np.maximum(w[:, 0], w[:, 2])
+        assert np.any(on_line)
+        return bool(np.any(on_line & (lo < 2.5) & (hi > 3.5)))
+
+    kw = {"min_group_pairs": 1, "min_wall_length": 0.0, "extend": 0.5}
+    assert crosses_doorway(FixedPathConfig(**kw))  # default: one wall per line
+    assert not crosses_doorway(FixedPathConfig(wall_gap=2.5, **kw))
+
+
+def test_a_wall_the_robot_drives_through_is_dropped() -> None:
+    from fusion_center.mapping.synthetic import SyntheticRoom
+
+    _, poses, pairs, _ = _echoes()
+    # a ghost: echoes of a wall across the middle of the room, x = 2.4 for y in 0.5..4.5, that
+    # the drives between the stops cross
+    rng = np.random.default_rng(7)
+    line = SyntheticRoom(
+        walls=np.array([[2.4, 0.5, 2.4, 4.5]]), corners=np.zeros((0, 2)), points=np.zeros((0, 2))
+    )
+    extra = [
+        np.vstack([z, echo_pairs(line, p, ANTENNAS, rng)])
+        for z, p in zip(pairs, poses, strict=True)
+    ]
+
+    def across(cfg: FixedPathConfig) -> int:
+        w = map_fixed_path(extra, None, poses, ANTENNAS, cfg).map.walls
+        return int(np.sum((np.abs(w[:, 0] - 2.4) < 0.1) & (np.abs(w[:, 2] - 2.4) < 0.1)))
+
+    # seen from both sides: a wall facing each way; the drives from x = 1.5 to x = 3 cross
+    # the one whose specular points (from the stops at x = 3 and 4.5) span y = 1.2 .. 3.8,
+    # not the other (y = 1.5 .. 3.5, from the stops at x = 1.5 only)
+    assert across(FixedPathConfig(min_group_pairs=1)) == 2
+    assert across(FixedPathConfig(min_group_pairs=1, drop_crossed=True)) == 1

@@ -321,6 +321,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         png=png,
         scenario=scenario,
         smooth=not args.no_smooth,
+        localise=args.localise,
     )
     return _run_offline(args, "mapping", run)
 
@@ -810,6 +811,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("measurement", "state"),
         default="measurement",
         help="data association (6.3): echo groups (measurement space) or per pair (state space)",
+    )
+    mp.add_argument(
+        "--localise",
+        choices=("auto", "stops", "filter"),
+        default="auto",
+        help="path estimator: the stop graph (stop-and-turn robots, deterministic), the "
+        "particle filter (Section 6), or auto: stops when the turns close (default)",
     )
     mp.add_argument("--particles", type=int, default=40, help="particles (40)")
     mp.add_argument("--seed", type=int, default=0, help="seed of the particle filter (0)")

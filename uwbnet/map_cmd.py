@@ -1,20 +1,34 @@
 """``uwbnet map FILE.mcap --out map.json [--png map.png]``: UWB SLAM over a robot recording.
 
-The I/O shell around :class:`fusion_center.mapping.EchoSlamMapper`: reads the robot's
-``node_info`` and ``ir`` messages (``ir.odom`` when present), runs the SLAM as fast as the
-machine allows and writes ``map.json``: ``walls`` ([[x1, y1, x2, y2], ...]), ``corners`` and
-``points`` ([[x, y], ...]) and ``trajectory`` ([[t, x, y, yaw], ...]), all in the frame of
-the robot's first pose (m, rad). The recorded true poses are never given to the filter.
+The I/O shell around the mapping of :mod:`fusion_center.mapping`: reads the robot's
+``node_info`` and ``ir`` messages (``ir.odom`` when present) and writes ``map.json``:
+``walls`` ([[x1, y1, x2, y2], ...]), ``corners`` and ``points`` ([[x, y], ...]) and
+``trajectory`` ([[t, x, y, yaw], ...]), all in the frame of the robot's first pose (m, rad).
+The recorded true poses are never given to the estimators.
+
+Two ways to the path (``localise``):
+
+* ``stops``: the stop graph (:mod:`fusion_center.mapping.stop_graph`, beyond the chapter): the
+  turn of every stop is one 360-degree scan; scans are registered stop to stop and joined by a
+  robust pose graph with the odometry; the map is then built along that path
+  (:func:`fusion_center.mapping.fixed_path.map_fixed_path`). Deterministic; needs odometry
+  and stops where the robot turns on the spot.
+* ``filter``: the chapter's Rao-Blackwellized particle filter
+  (:class:`fusion_center.mapping.EchoSlamMapper`, Section 6), then the joint least-squares
+  smoothing (``smooth``). The live mapping service runs this one.
+* ``auto`` (default): ``stops`` when the recording has odometry and the turn closure closes at
+  least half of its stops (:data:`AUTO_MIN_CLOSED`), else ``filter``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import logging
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +38,12 @@ from protocol import Ir, NodeInfo, Truth
 from protocol.recording import decoded_messages
 
 log = logging.getLogger(__name__)
+
+#: ``auto`` takes the stop graph when at least this fraction of the stops' turns close (the
+#: stop graph's reflectors and in-stop headings come from the closure; room_pillar: 64-67 %,
+#: corridor_L_sparse with its 15-degree steps: 0 %).
+AUTO_MIN_CLOSED = 0.5
+LOCALISERS = ("auto", "stops", "filter")
 
 
 class MappingError(ValueError):
@@ -48,6 +68,10 @@ class MapStats:
     acquisitions_per_s: float = 0.0
     smoothed: bool = False
     smooth_cpu_s: float = 0.0
+    localise: str = ""
+    stops: int = 0
+    stops_closed: int = 0
+    registrations: int = 0
     eval: dict[str, Any] | None = None
     eval_filter: dict[str, Any] | None = None
 
@@ -86,6 +110,100 @@ def _make_mapper(
     )
 
 
+def _robot_ir(
+    path: str | os.PathLike[str],
+    robot: str | None,
+    stats: MapStats,
+    progress: Callable[[int], None] | None,
+    truth: list[tuple[float, tuple[float, ...]]],
+    dead: list[list[float]],
+) -> Iterator[tuple[NodeInfo, Ir]]:
+    """The mapped robot's valid ``ir`` messages with its ``node_info``; collects its
+    ``truth`` and the dead-reckoning path (the odometry integrated alone, first-pose frame)
+    on the way and counts rejected ones in ``stats``."""
+    infos: dict[str, NodeInfo] = {}
+    dr_pose = np.zeros(3)
+    for msg in decoded_messages(path, ("node_info", "ir", "truth"), stats, progress):
+        if isinstance(msg, NodeInfo):
+            infos[msg.src] = msg
+        elif isinstance(msg, Truth) and stats.robot and stats.robot in msg.nodes:
+            truth.append((msg.t, msg.nodes[stats.robot]))
+        elif isinstance(msg, Ir):
+            info = infos.get(msg.src)
+            if info is None or not info.mobile or (robot is not None and msg.src != robot):
+                continue
+            if not stats.robot:
+                stats.robot = msg.src
+            elif msg.src != stats.robot:
+                continue
+            if msg.h.shape[0] != 2 or not np.all(np.isfinite(msg.h)):
+                stats.rejected += 1
+                log.warning("ir of %s rejected: needs two finite rows", msg.src)
+                continue
+            stats.ir += 1
+            if msg.odom is not None and dead:
+                dr_pose = compose(dr_pose, np.asarray(msg.odom, float))
+            dead.append([msg.t, *dr_pose.tolist()])
+            yield info, msg
+
+
+class _NotStopsError(Exception):
+    """The recording does not suit the stop graph (``auto`` then runs the filter)."""
+
+
+def _map_by_stops(
+    path: str | os.PathLike[str],
+    robot: str | None,
+    stats: MapStats,
+    progress: Callable[[int], None] | None,
+    truth: list[tuple[float, tuple[float, ...]]],
+    dead: list[list[float]],
+    auto: bool,
+) -> tuple[Any, np.ndarray]:
+    """Map and ``[t, x, y, yaw]`` path by the stop graph and the map along its path.
+
+    Raises :class:`_NotStopsError` when the recording does not suit it (an ``ir`` without
+    odometry; with ``auto`` also fewer than :data:`AUTO_MIN_CLOSED` of the stops closed)."""
+    from fusion_center.mapping.fixed_path import map_fixed_path
+    from fusion_center.mapping.stop_graph import StopGraphPathEstimator, scan_front_end
+
+    msgs = _robot_ir(path, robot, stats, progress, truth, dead)
+    first = next(msgs, None)
+    if first is None:
+        raise MappingError(f"{path}: no ir of a mobile node (robot) with its node_info")
+    info, msg0 = first
+    antennas = robot_geometry(info, msg0.rx)
+    r = info.radar
+    missing: list[float] = []
+
+    def frames() -> Iterator[tuple[float, np.ndarray, Any]]:
+        for _, m in itertools.chain([first], msgs):
+            if m.odom is None:
+                missing.append(m.t)
+                return
+            yield m.t, m.h, m.odom
+
+    try:
+        scans = scan_front_end(frames(), fs=r.fs, t0=r.t0, bandwidth=r.f_high - r.f_low)
+    except ValueError as exc:
+        raise MappingError(f"{path}: {exc}") from None
+    if missing:
+        raise _NotStopsError(f"the ir at t = {missing[0]} s has no odometry")
+    try:
+        res = StopGraphPathEstimator(antennas).estimate(scans)
+    except ValueError as exc:
+        raise MappingError(f"{path}: {exc}") from None
+    stats.stops = len(res.stops)
+    stats.stops_closed = sum(s.closed for s in res.stops)
+    stats.registrations = sum(e.kind != "odometry" for e in res.edges)
+    if auto and stats.stops_closed < AUTO_MIN_CLOSED * stats.stops:
+        raise _NotStopsError(f"{stats.stops_closed} of {stats.stops} stops closed")
+    built = map_fixed_path(scans.pairs, scans.groups, res.trajectory[:, 1:], antennas)
+    stats.pairs_seen = sum(int(p.shape[0]) for p in scans.pairs)
+    stats.pairs_used = int(built.pairs.sum())
+    return built.map, res.trajectory
+
+
 def map_recording(
     path: str | os.PathLike[str],
     out: str | os.PathLike[str],
@@ -98,17 +216,19 @@ def map_recording(
     scenario: Any = None,
     progress: Callable[[int], None] | None = None,
     smooth: bool = True,
+    localise: str = "auto",
 ) -> MapStats:
     """Map a robot recording; write ``out`` (map.json) and optionally ``png``.
 
-    ``method`` is the data association (``measurement`` or ``state``, Section 6.3); ``seed``
-    seeds the particle filter (a run's figures scatter with it). With
+    ``localise`` picks the path estimator (``auto``, ``stops``, ``filter``: the module
+    docstring). For the filter, ``method`` is the data association (``measurement`` or
+    ``state``, Section 6.3) and ``seed`` seeds it (a run's figures scatter with it); with
+    ``smooth`` (and odometry in the recording), the filter's path and map are re-estimated
+    jointly by least squares (:meth:`fusion_center.mapping.EchoSlamMapper.smooth`), map.json
+    holds the smoothed ones and ``stats.eval_filter`` scores the filter's own. With
     ``scenario`` (a loaded scenario) and ``truth`` messages in the recording, ``stats.eval``
     holds the map's errors (:func:`uwbnet.map_eval.evaluate_map`). Outputs appear only when
-    complete. Bad messages are counted in ``rejected`` and logged. With ``smooth`` (and
-    odometry in the recording), the filter's path and map are re-estimated jointly by least
-    squares (:meth:`fusion_center.mapping.EchoSlamMapper.smooth`) and map.json holds the
-    smoothed ones; ``stats.eval_filter`` then scores the filter's own map and path.
+    complete. Bad messages are counted in ``rejected`` and logged.
     """
     import time
 
@@ -116,70 +236,74 @@ def map_recording(
         raise MappingError(f"unknown association {method!r} (measurement, state)")
     if particles < 1:
         raise MappingError(f"--particles must be at least 1, got {particles}")
-    stats = MapStats()
-    infos: dict[str, NodeInfo] = {}
-    mapper = None
-    traj: list[list[float]] = []
-    # the odometry integrated alone (the baseline of --eval), first-pose frame
-    dead: list[list[float]] = []
-    dr_pose = np.zeros(3)
-    truth: list[tuple[float, tuple[float, ...]]] = []
+    if localise not in LOCALISERS:
+        raise MappingError(f"unknown --localise {localise!r} ({', '.join(LOCALISERS)})")
     t_start = time.perf_counter()
+    filter_map = filter_traj = None
+    stats = MapStats()
+    truth: list[tuple[float, tuple[float, ...]]] = []
+    dead: list[list[float]] = []
+    traj: list[list[float]] = []
+    the_map = None
+    if localise != "filter":
+        try:
+            the_map, path_arr = _map_by_stops(
+                path, robot, stats, progress, truth, dead, auto=localise == "auto"
+            )
+            traj = [[float(v) for v in row] for row in path_arr]
+            stats.updates = len(traj)
+            stats.localise = "stops"
+            stats.acquisitions_per_s = round(stats.ir / max(time.perf_counter() - t_start, 1e-9), 1)
+        except _NotStopsError as why:
+            if localise == "stops":
+                raise MappingError(f"{path}: no stop graph: {why}") from None
+            log.info("%s: the particle filter maps it (no stop graph: %s)", path, why)
+            # a fresh count for the filter's pass; what the stop graph found stays reported
+            stats = MapStats(
+                stops=stats.stops,
+                stops_closed=stats.stops_closed,
+                registrations=stats.registrations,
+            )
+            truth, dead = [], []
+    if the_map is None:
+        stats.localise = "filter"
+        mapper = None
 
-    def emit(outputs: list[Any]) -> None:
-        for o in outputs:
-            x, y, yaw = o.estimate.pose
-            traj.append([o.t, float(x), float(y), float(yaw)])
-            stats.updates += 1
+        def emit(outputs: list[Any]) -> None:
+            for o in outputs:
+                x, y, yaw = o.estimate.pose
+                traj.append([o.t, float(x), float(y), float(yaw)])
+                stats.updates += 1
 
-    for msg in decoded_messages(path, ("node_info", "ir", "truth"), stats, progress):
-        if isinstance(msg, NodeInfo):
-            infos[msg.src] = msg
-        elif isinstance(msg, Truth) and stats.robot and stats.robot in msg.nodes:
-            truth.append((msg.t, msg.nodes[stats.robot]))
-        elif isinstance(msg, Ir):
-            info = infos.get(msg.src)
-            if info is None or not info.mobile or (robot is not None and msg.src != robot):
-                continue
-            if not stats.robot:
-                stats.robot = msg.src
+        for info, msg in _robot_ir(path, robot, stats, progress, truth, dead):
+            if mapper is None:
                 mapper = _make_mapper(info, msg.rx, particles, method, seed, smooth)
-            elif msg.src != stats.robot:
-                continue
-            if msg.h.shape[0] != 2 or not np.all(np.isfinite(msg.h)):
-                stats.rejected += 1
-                log.warning("ir of %s rejected: needs two finite rows", msg.src)
-                continue
-            stats.ir += 1
-            if msg.odom is not None and dead:
-                dr_pose = compose(dr_pose, np.asarray(msg.odom, float))
-            dead.append([msg.t, *dr_pose.tolist()])
             emit(mapper.step(msg.t, msg.h, msg.odom))
-    if mapper is None:
-        raise MappingError(f"{path}: no ir of a mobile node (robot) with its node_info")
-    emit(mapper.finish())
-    the_map = filter_map = mapper.map()
-    filter_traj = traj
-    # the filter's own rate (what the live service must sustain); smoothing runs once after
-    filter_s = time.perf_counter() - t_start
-    stats.acquisitions_per_s = round(stats.ir / max(filter_s, 1e-9), 1)
-    if smooth:
-        c0 = time.process_time()
-        smoothed = mapper.smooth()
-        stats.smooth_cpu_s = round(time.process_time() - c0, 2)
-        if smoothed is not None:
-            the_map, poses = smoothed
-            traj = [[float(v) for v in row] for row in poses]
-            stats.smoothed = True
-        else:
-            log.warning("%s: not smoothed (an ir without odometry): the filter's map", path)
+        if mapper is None:
+            raise MappingError(f"{path}: no ir of a mobile node (robot) with its node_info")
+        emit(mapper.finish())
+        the_map = filter_map = mapper.map()
+        filter_traj = traj
+        # the filter's own rate (what the live service must sustain); smoothing runs once after
+        filter_s = time.perf_counter() - t_start
+        stats.acquisitions_per_s = round(stats.ir / max(filter_s, 1e-9), 1)
+        if smooth:
+            c0 = time.process_time()
+            smoothed = mapper.smooth()
+            stats.smooth_cpu_s = round(time.process_time() - c0, 2)
+            if smoothed is not None:
+                the_map, poses = smoothed
+                traj = [[float(v) for v in row] for row in poses]
+                stats.smoothed = True
+            else:
+                log.warning("%s: not smoothed (an ir without odometry): the filter's map", path)
+        stats.pairs_seen, stats.pairs_used = mapper.pairs_seen, mapper.pairs_used
     stats.wall_s = round(time.perf_counter() - t_start, 2)
     stats.walls, stats.corners, stats.points = (
         len(the_map.walls),
         len(the_map.corners),
         len(the_map.points),
     )
-    stats.pairs_seen, stats.pairs_used = mapper.pairs_seen, mapper.pairs_used
     doc = {
         "walls": np.round(the_map.walls, 4).tolist(),
         "corners": np.round(the_map.corners, 4).tolist(),
@@ -187,6 +311,7 @@ def map_recording(
         "trajectory": [[round(v, 5) for v in row] for row in traj],
         "robot": stats.robot,
         "frame": "first pose of the robot",
+        "localise": stats.localise,
         "association": method,
         "particles": particles,
         "seed": seed,
@@ -204,7 +329,7 @@ def map_recording(
         has_odom = any(np.any(r[1:] != 0) for r in dead)
         dr = np.array(dead) if has_odom else None
         stats.eval = evaluate_map(doc, scenario, truth_traj, first, dr)
-        if stats.smoothed:
+        if stats.smoothed and filter_map is not None:
             raw = {
                 "walls": filter_map.walls.tolist(),
                 "corners": filter_map.corners.tolist(),

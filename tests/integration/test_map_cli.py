@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import pytest
 
+from protocol import Ir, decode
+from protocol.recording import RecordingWriter, read_recording
 from tests.cli import assert_one_line_error, last_json, uwbnet
 
 pytestmark = pytest.mark.integration
@@ -35,6 +38,9 @@ def test_map_writes_walls_corners_points_and_trajectory(
     assert set(doc) >= {"walls", "corners", "points", "trajectory"}
     assert doc["seed"] == 3
     assert stats["ir"] == 120 and len(doc["trajectory"]) == 120
+    # 15-degree turning steps: no turn closes, so ``auto`` leaves the stop graph for the filter
+    assert stats["localise"] == "filter" and doc["localise"] == "filter"
+    assert stats["stops"] == 5 and stats["stops_closed"] == 0
     assert all(len(w) == 4 for w in doc["walls"]) and len(doc["walls"]) >= 2
     assert png.stat().st_size > 1000
     # The trajectory starts at the origin of the first-pose frame and stays near the truth.
@@ -65,4 +71,62 @@ def test_map_errors_are_one_line(robot_recording: Path, tmp_path: Path) -> None:
     assert_one_line_error(proc, "--particles")
     proc = uwbnet("map", str(robot_recording), "--out", str(out), "--robot", "nobody")
     assert_one_line_error(proc, "no ir of a mobile node")
+    proc = uwbnet("map", str(robot_recording), "--out", str(out), "--localise", "nowhere")
+    assert proc.returncode != 0 and "--localise" in proc.stderr
     assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def turning_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("turning") / "rp.mcap"
+    proc = uwbnet(
+        "sim", "room_pillar", "--out", str(out), "--workers", "1", "--seed", "3", "--stops", "6"
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_map_localises_a_turning_robot_by_its_stop_graph(
+    turning_recording: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "map.json"
+    proc = uwbnet("map", str(turning_recording), "--out", str(out), "--eval", "room_pillar")
+    assert proc.returncode == 0, proc.stderr
+    stats = last_json(proc)
+    doc = json.loads(out.read_text())
+    # 3-degree steps: the turns close, so ``auto`` takes the stop graph
+    assert stats["localise"] == "stops" and doc["localise"] == "stops"
+    assert stats["stops"] == 6 and stats["stops_closed"] >= 3
+    assert stats["ir"] == 720 and len(doc["trajectory"]) == 720
+    assert doc["trajectory"][0][1:] == [0.0, 0.0, 0.0]
+    ev = stats["eval"]
+    # deterministic, no particle filter: the path beats dead reckoning, the map has walls
+    assert ev["trajectory"]["rmse_m"] < 0.5 * ev["dead_reckoning"]["rmse_m"]
+    assert ev["walls"]["faces_found"] >= 3 and ev["walls"]["position_m"]["median"] < 0.1
+    assert stats["eval_filter"] is None
+    again = tmp_path / "again.json"
+    proc = uwbnet("map", str(turning_recording), "--out", str(again), "--localise", "stops")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(again.read_text()) == doc
+    proc = uwbnet("map", str(turning_recording), "--out", str(again), "--localise", "filter",
+                  "--particles", "10", "--no-smooth")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert last_json(proc)["localise"] == "filter"
+
+
+def test_map_stop_graph_without_odometry(turning_recording: Path, tmp_path: Path) -> None:
+    bare = tmp_path / "bare.mcap"
+    with RecordingWriter(bare) as w:
+        for rec in read_recording(turning_recording):
+            msg = decode(rec.payload)
+            if isinstance(msg, Ir):
+                msg = dataclasses.replace(msg, odom=None)
+            w.write_message(rec.topic, msg)
+    out = tmp_path / "m.json"
+    proc = uwbnet("map", str(bare), "--out", str(out), "--localise", "stops")
+    assert_one_line_error(proc, "has no odometry")
+    assert not out.exists()
+    # auto falls back to the particle filter
+    proc = uwbnet("map", str(bare), "--out", str(out), "--particles", "5", "--no-smooth")
+    assert proc.returncode == 0, proc.stderr
+    assert last_json(proc)["localise"] == "filter" and out.exists()

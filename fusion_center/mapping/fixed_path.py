@@ -12,7 +12,8 @@ registration), the landmarks are estimated directly, without a filter:
    along ``T' - tx``) and a point-like one (a corner at ``(tx + T') / 2`` or a point at
    ``p``). A turn on the spot cannot tell them apart; a second stop can: a wall's
    hypotheses from two stops lie on one line, a corner's or edge's at one position. A group
-   takes the kind that stays consistent with groups from more other stops;
+   takes the kind that stays consistent with groups from more other stops (both kinds on a
+   tie: the fit and association of step 3 decide);
 3. groups of one kind are clustered greedily (most pairs first) into landmarks; each
    landmark is fitted to all its echo pairs by iteratively reweighted Gauss-Newton with a
    Cauchy loss (:meth:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother.fit_alone`),
@@ -430,33 +431,38 @@ class _FixedPathMapper:
         point_nb = _close_pairs([foot, pnt], cfg.point_gate)
         w_sup = self._other_stops(wall_nb, st)
         p_sup = self._other_stops(point_nb, st)
+        # a group takes the kind more other stops confirm; on a tie it keeps both and the
+        # fit and association decide: a corner seen from stops in line with it (parallax
+        # under wall_angle) confirms a wall through it just as well, and that wall is
+        # dropped as too short, so a tie given to the wall lost the corner silently
         is_wall = (w_sup >= p_sup) & (w_sup > 0)
-        is_pt = (p_sup > w_sup) & (p_sup > 0)
+        is_pt = (p_sup >= w_sup) & (p_sup > 0)
         size = cnt[idx].astype(float)
-        label = self._greedy(size, is_wall, is_pt, wall_nb, point_nb)
+        lab_w, lab_p, kinds = self._greedy(size, is_wall, is_pt, wall_nb, point_nb)
+        nl = kinds.size
         # every cluster's state: the pair-weighted mean of its members' hypotheses
-        on = label >= 0
-        nl = int(label.max()) + 1 if np.any(on) else 0
-        lab, wgt = label[on], size[on]
-        tot = np.bincount(lab, wgt, minlength=nl)
+        on_w, on_p = lab_w >= 0, lab_p >= 0
+        lw, ww = lab_w[on_w], size[on_w]
+        lp, wp = lab_p[on_p], size[on_p]
 
-        def mean(x: FloatArray) -> FloatArray:
-            return np.stack([np.bincount(lab, wgt * x[on, k], minlength=nl) for k in range(2)], -1)
+        def mean(lab: IntArray, w: FloatArray, x: FloatArray) -> FloatArray:
+            tot = np.maximum(np.bincount(lab, w, minlength=nl), 1e-300)
+            return (
+                np.stack([np.bincount(lab, w * x[:, k], minlength=nl) for k in range(2)], -1)
+                / (tot[:, None])
+            )
 
-        kind = np.where(is_wall[on], WALL, CORNER)
-        kinds = np.zeros(nl, np.int64)
-        kinds[lab] = kind
-        nn = mean(nrm) / tot[:, None]
+        nn = mean(lw, ww, nrm[on_w])
         alpha = np.arctan2(nn[:, 1], nn[:, 0])
-        d = np.bincount(
-            lab, wgt * np.sum(foot[on] * np.stack([np.cos(alpha), np.sin(alpha)], -1)[lab], 1), nl
-        )
+        along = np.stack([np.cos(alpha), np.sin(alpha)], -1)[lw]
+        d = mean(lw, ww, np.sum(foot[on_w] * along, 1)[:, None].repeat(2, 1))[:, 0]
         states = np.where(
             (kinds == WALL)[:, None],
-            np.column_stack([alpha, d / tot]),
-            mean(0.5 * (foot + pnt)) / tot[:, None],
+            np.column_stack([alpha, d]),
+            mean(lp, wp, 0.5 * (foot + pnt)[on_p]),
         )
-        return kinds, states, np.bincount(lab, minlength=nl).astype(np.int64)
+        support = np.bincount(lw, minlength=nl) + np.bincount(lp, minlength=nl)
+        return kinds, states, support.astype(np.int64)
 
     def _wall_neighbours(self, foot: FloatArray, nrm: FloatArray) -> tuple[IntArray, IntArray]:
         """Every ordered pair ``(i, j)`` (itself included) of groups whose wall hypotheses
@@ -495,29 +501,28 @@ class _FixedPathMapper:
         is_pt: npt.NDArray[np.bool_],
         wall_nb: tuple[IntArray, IntArray],
         point_nb: tuple[IntArray, IntArray],
-    ) -> IntArray:
-        """Cluster of every group (-1: none), greedily, most pairs first: each seed takes
-        the free groups of its kind that agree with it (of any stop). The loop runs once per
-        cluster, over the seed's neighbours only."""
-        ptr = {}
-        for key, (i, j) in (("w", wall_nb), ("p", point_nb)):
-            ptr[key] = (np.searchsorted(i, np.arange(size.size + 1)), j)
-        label = np.full(size.size, -1)
-        free = is_wall | is_pt
-        k = 0
+    ) -> tuple[IntArray, IntArray, IntArray]:
+        """Wall cluster and point-like cluster of every group (-1: none) and the kind of
+        every cluster, greedily, most pairs first: each seed takes the free groups of its
+        kind that agree with it (of any stop); a group of both kinds (a tie) seeds or joins
+        one cluster of each. The loop runs once per cluster, over the seed's neighbours."""
+        ptr = [(np.searchsorted(i, np.arange(size.size + 1)), j) for i, j in (wall_nb, point_nb)]
+        labels = [np.full(size.size, -1), np.full(size.size, -1)]
+        free = [is_wall.copy(), is_pt.copy()]
+        kinds: list[int] = []
         for s in np.argsort(-size):
-            if not free[s]:
-                continue
-            wall = bool(is_wall[s])
-            start, nbr = ptr["w" if wall else "p"]
-            cand = nbr[start[s] : start[s + 1]]
-            members = cand[free[cand] & (is_wall[cand] if wall else is_pt[cand])]
-            label[members] = k
-            label[s] = k
-            free[members] = False
-            free[s] = False
-            k += 1
-        return label
+            for kind in (0, 1):
+                if not free[kind][s]:
+                    continue
+                start, nbr = ptr[kind]
+                cand = nbr[start[s] : start[s + 1]]
+                members = cand[free[kind][cand]]
+                labels[kind][members] = len(kinds)
+                labels[kind][s] = len(kinds)
+                free[kind][members] = False
+                free[kind][s] = False
+                kinds.append(WALL if kind == 0 else CORNER)
+        return labels[0], labels[1], np.array(kinds, np.int64)
 
     # --- association and fit ------------------------------------------------------------------
 

@@ -182,9 +182,23 @@ class FixedPathConfig:
         for name, v in positive.items():
             if not (np.isfinite(v) and v > 0.0):
                 raise ValueError(f"FixedPathConfig.{name} must be > 0, got {v!r}")
-        if not (np.isfinite(self.kind_margin) and self.kind_margin >= 0.0):
+        non_negative = {
+            "kind_margin": self.kind_margin,
+            "merge_dist": self.merge_dist,
+            "merge_angle": self.merge_angle,
+            "merge_point_dist": self.merge_point_dist,
+            "min_wall_length": self.min_wall_length,
+            "overlap_dist": self.overlap_dist,
+            "overlap_angle": self.overlap_angle,
+            "extend": self.extend,
+        }
+        for name, v in non_negative.items():
+            if not (np.isfinite(v) and v >= 0.0):
+                raise ValueError(f"FixedPathConfig.{name} must be finite and >= 0, got {v!r}")
+        if self.assoc_gate_start < self.assoc_gate:
             raise ValueError(
-                f"FixedPathConfig.kind_margin must be finite and >= 0, got {self.kind_margin!r}"
+                "FixedPathConfig.assoc_gate_start must be >= assoc_gate (the gate shrinks), "
+                f"got {self.assoc_gate_start!r} < {self.assoc_gate!r}"
             )
         if not self.wall_gap > 0.0:
             raise ValueError(f"FixedPathConfig.wall_gap must be > 0, got {self.wall_gap!r}")
@@ -192,9 +206,8 @@ class FixedPathConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"FixedPathConfig.{name} must be an integer >= 1, got {v!r}")
-        if len(self.path_sigma) != 2 or not all(
-            np.isfinite(s) and s > 0.0 for s in self.path_sigma
-        ):
+        sig = np.atleast_1d(np.asarray(self.path_sigma, float))
+        if sig.shape != (2,) or not np.all(np.isfinite(sig) & (sig > 0.0)):
             raise ValueError(
                 f"FixedPathConfig.path_sigma must be two values > 0, got {self.path_sigma!r}"
             )
@@ -260,6 +273,20 @@ def _group_mean(x: FloatArray, g: IntArray, n: int, trim: float) -> tuple[FloatA
         near = np.linalg.norm(x - mean[g], axis=1) <= trim
         ok = ok & np.where(np.isfinite(near), near, False)
     return mean, cnt
+
+
+def _pair_array(p: npt.ArrayLike, i: int) -> FloatArray:
+    """One acquisition's echo pairs as an ``(m, 2)`` float array (an empty entry of any
+    shape is ``(0, 2)``); anything else is refused, never reshaped."""
+    try:
+        a = np.asarray(p, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"pairs[{i}] must be numeric echo pairs of shape (m, 2)") from None
+    if a.size == 0:
+        return np.zeros((0, 2))
+    if a.ndim != 2 or a.shape[1] != 2:
+        raise ValueError(f"pairs[{i}] must have shape (m, 2), got {a.shape}")
+    return a
 
 
 def _symmetric(i: IntArray, j: IntArray, n: int) -> tuple[IntArray, IntArray]:
@@ -334,7 +361,10 @@ def map_fixed_path(
         Shapes that do not match, non-finite values or a degenerate array (one line).
     """
     cfg = config or FixedPathConfig()
-    poses = np.asarray(path, float)
+    try:
+        poses = np.asarray(path, float)
+    except (TypeError, ValueError):
+        raise ValueError("path must be a numeric array of shape (n, 3)") from None
     if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] == 0:
         raise ValueError(f"path must have shape (n, 3) with n >= 1, got {poses.shape}")
     if not np.all(np.isfinite(poses)):
@@ -347,11 +377,15 @@ def map_fixed_path(
     if np.linalg.norm(ant[1] - ant[2]) < 1e-6:
         raise ValueError("antennas: the two receivers coincide")
     n = poses.shape[0]
+    if pairs is None or isinstance(pairs, str) or not hasattr(pairs, "__len__"):
+        raise ValueError("pairs must be a list with one (m_i, 2) array per pose")
+    if groups is not None and (isinstance(groups, str) or not hasattr(groups, "__len__")):
+        raise ValueError("groups must be None or a list with one (m_i,) array per pose")
     if len(pairs) != n:
         raise ValueError(f"pairs must have one entry per pose ({n}), got {len(pairs)}")
     if groups is not None and len(groups) != n:
         raise ValueError(f"groups must have one entry per pose ({n}), got {len(groups)}")
-    zs = [np.asarray(p, float).reshape(-1, 2) for p in pairs]
+    zs = [_pair_array(p, i) for i, p in enumerate(pairs)]
     z = np.concatenate([*zs, np.zeros((0, 2))])
     if not np.all(np.isfinite(z)):
         raise ValueError("pairs hold non-finite ranges")

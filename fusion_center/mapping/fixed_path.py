@@ -53,6 +53,7 @@ from fusion_center.mapping.models import (
 from fusion_center.mapping.smoothing import (
     LeastSquaresPathMapSmoother,
     SmootherConfig,
+    _wrap,
     merge_duplicates,
 )
 
@@ -763,8 +764,14 @@ class _FixedPathMapper:
     def empty(self) -> FixedPathMap:
         """The map without landmarks (no group was consistent across stops)."""
         return FixedPathMap(
-            map=SlamMap(), poses=self.poses.copy(), stop_corrections=self.corr.copy()
+            map=SlamMap(), poses=self.out_poses(), stop_corrections=self.corr.copy()
         )
+
+    def out_poses(self) -> FloatArray:
+        """The path with yaw wrapped to [-pi, pi) (the refinement adds to the given yaw)."""
+        p = self.poses.copy()
+        p[:, 2] = _wrap(p[:, 2])
+        return p
 
     def run(self) -> FixedPathMap:
         cfg = self.cfg
@@ -818,9 +825,14 @@ class _FixedPathMapper:
             )
         return FixedPathMap(
             map=the_map,
-            poses=self.poses.copy(),
+            poses=self.out_poses(),
             kinds=kinds,
-            states=states,
+            # a wall's alpha wrapped to [-pi, pi), as the smoother's
+            states=np.where(
+                (kinds == WALL)[:, None],
+                np.column_stack([_wrap(states[:, 0]), states[:, 1]]),
+                states,
+            ),
             pairs=pairs.astype(np.int64),
             stops=stops.astype(np.int64),
             stop_corrections=self.corr.copy(),

@@ -9,6 +9,7 @@ import pytest
 
 from fusion_center.mapping.fixed_path import FixedPathConfig, map_fixed_path
 from fusion_center.mapping.grouping import KalmanEchoGrouper
+from fusion_center.mapping.models import WALL
 from fusion_center.mapping.synthetic import (
     SyntheticRoom,
     echo_pairs,
@@ -35,6 +36,10 @@ def _echoes(seed: int = 1):
             grouper.reset()
         ids.append(grouper.step(z))
     return room, poses, pairs, ids
+
+
+def _wrap_angle(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def _seg_dist(seg: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -89,7 +94,8 @@ def test_the_room_is_mapped_at_its_true_path() -> None:
         > 0.2
     ]
     assert not ghosts
-    assert np.array_equal(res.poses, poses) and not np.any(res.stop_corrections)
+    assert np.array_equal(res.poses[:, :2], poses[:, :2]) and not np.any(res.stop_corrections)
+    assert np.allclose(_wrap_angle(res.poses[:, 2] - poses[:, 2]), 0.0, atol=1e-12)
 
 
 def test_path_refinement_pulls_perturbed_stops_back() -> None:
@@ -102,7 +108,7 @@ def test_path_refinement_pulls_perturbed_stops_back() -> None:
     res = map_fixed_path(pairs, ids, bad, ANTENNAS, cfg)
     before = np.sqrt(np.mean(np.sum((bad[:, :2] - poses[:, :2]) ** 2, 1)))
     after = np.sqrt(np.mean(np.sum((res.poses[:, :2] - poses[:, :2]) ** 2, 1)))
-    yaw_after = np.abs(res.poses[:, 2] - poses[:, 2]).max()
+    yaw_after = np.abs(_wrap_angle(res.poses[:, 2] - poses[:, 2])).max()
     assert before > 0.04
     assert after < 0.4 * before, (before, after)
     assert yaw_after < np.radians(0.5)
@@ -207,6 +213,16 @@ def test_a_far_corner_is_not_called_a_point_on_noise(seed) -> None:
     res = _map_from_stops(_single(corner=[4.0, 0.0]), THREE_STOPS, seed).map
     assert len(res.points) == 0, res.points
     assert len(res.corners) == 1 and np.linalg.norm(res.corners[0] - [4.0, 0.0]) < 0.05
+
+
+def test_output_angles_are_wrapped() -> None:
+    _, poses, pairs, ids = _echoes()
+    poses = poses.copy()
+    poses[::2, 2] += 4 * np.pi  # the same headings, given unwrapped
+    res = map_fixed_path(pairs, ids, poses, ANTENNAS, FixedPathConfig(refine_path=True))
+    for a in (res.poses[:, 2], res.states[res.kinds == WALL, 0]):
+        assert a.size and np.all((a >= -np.pi) & (a < np.pi)), a
+    assert len(res.map.walls) == 4
 
 
 def _is_empty(res) -> bool:

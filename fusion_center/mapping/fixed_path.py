@@ -448,10 +448,15 @@ class _FixedPathMapper:
         )
         self.rx_body = ant[1:] - ant[0]
         # the rotation centre of a stop's correction: its mean transmitter position
-        tx, _ = _world_array(poses, ant)
-        cnt = np.bincount(stop_of, minlength=self.n_stops)
-        self.centre = np.stack(
-            [np.bincount(stop_of, tx[:, i], minlength=self.n_stops) / cnt for i in range(2)], -1
+        self.centre = self.stop_centres(poses)
+
+    def stop_centres(self, poses: FloatArray) -> FloatArray:
+        """Mean transmitter position (s, 2) of every stop at the given poses, m."""
+        tx, _ = _world_array(poses, self.ant)
+        cnt = np.bincount(self.stop_of, minlength=self.n_stops)
+        return np.stack(
+            [np.bincount(self.stop_of, tx[:, i], minlength=self.n_stops) / cnt for i in range(2)],
+            -1,
         )
 
     # --- hypotheses ---------------------------------------------------------------------------
@@ -842,12 +847,7 @@ class _FixedPathMapper:
     def crossed(self, walls: FloatArray) -> npt.NDArray[np.bool_]:
         """Which wall segments ``[x1, y1, x2, y2]`` (w, 4) a drive between consecutive stops
         crosses (the transmitter's mean positions; the walls shortened by 5 cm at each end)."""
-        tx, _ = _world_array(self.poses, self.ant)
-        cnt = np.bincount(self.stop_of, minlength=self.n_stops)
-        ctr = np.stack(
-            [np.bincount(self.stop_of, tx[:, i], minlength=self.n_stops) / cnt for i in range(2)],
-            -1,
-        )
+        ctr = self.stop_centres(self.poses)
         a, b = ctr[:-1], ctr[1:]  # drives (d, 2)
         p, q = walls[:, :2], walls[:, 2:]
         e = q - p

@@ -196,6 +196,10 @@ class FixedPathConfig:
         for name, v in non_negative.items():
             if not (np.isfinite(v) and v >= 0.0):
                 raise ValueError(f"FixedPathConfig.{name} must be finite and >= 0, got {v!r}")
+        for name in ("refine_path", "fitted_kinds", "drop_crossed"):
+            v = getattr(self, name)
+            if not isinstance(v, bool | np.bool_):
+                raise ValueError(f"FixedPathConfig.{name} must be True or False, got {v!r}")
         if self.assoc_gate_start < self.assoc_gate:
             raise ValueError(
                 "FixedPathConfig.assoc_gate_start must be >= assoc_gate (the gate shrinks), "

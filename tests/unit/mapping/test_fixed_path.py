@@ -295,6 +295,8 @@ def test_bad_input_is_refused_in_one_line(kwargs, match) -> None:
         {"overlap_dist": np.inf},
         {"kind_margin": np.nan},
         {"assoc_gate_start": 0.05, "assoc_gate": 0.15},
+        {"fitted_kinds": "no"},
+        {"refine_path": 1},
     ],
 )
 def test_bad_configuration_is_refused(kwargs) -> None:

@@ -1,4 +1,4 @@
-"""The map of a robot's echoes along a known path (batch mapping at fixed poses).
+r"""The map of a robot's echoes along a known path (batch mapping at fixed poses).
 
 Given every acquisition's pose (a path from another estimator, e.g. stop-to-stop scan
 registration), the landmarks are estimated directly, without a filter:
@@ -27,6 +27,25 @@ registration), the landmarks are estimated directly, without a filter:
 5. the landmarks with enough pairs from at least two stops become a
    :class:`~fusion_center.mapping.features.SlamMap`
    (:func:`~fusion_center.mapping.features.build_map`).
+
+Steps 3 and 4 minimise, over the landmark states :math:`\ell_k` (and, with the
+refinement, the stop corrections :math:`c_s = (\delta x, \delta y, \delta\psi)`, stop 0
+held), the Cauchy cost of the echo pairs :math:`z_i = (r_1, r_2)` associated with landmark
+:math:`k(i)` at pose :math:`p_i` of stop :math:`s(i)`, plus the path prior:
+
+.. math::
+
+   J = \sum_i \sum_{j=1,2} \tfrac{1}{2} c^2 \log\Bigl(1 + \frac{e_{ij}^2}{c^2}\Bigr)
+       + \tfrac{1}{2} \sum_{s \ge 1} c_s^\top \Sigma^{-1} c_s,
+   \qquad e_{ij} = \frac{z_{ij} - h_j(\ell_{k(i)}, p_i \oplus c_{s(i)})}{\sigma_r},
+
+with :math:`h` the Fig. 19 range model of the landmark's kind, :math:`c` = ``loss_scale``,
+:math:`\sigma_r` = ``range_sigma`` and :math:`\Sigma = \mathrm{diag}(\sigma_{xy}^2,
+\sigma_{xy}^2, \sigma_\psi^2)` from ``path_sigma``; :math:`p \oplus c` rotates the
+transmitter by :math:`\delta\psi` about the stop's mean transmitter position and shifts it by
+:math:`(\delta x, \delta y)`. Without the refinement the poses are fixed and :math:`J`
+separates per landmark. A point-like landmark is a corner or a point by the lower :math:`J`
+of the two models when they differ by more than ``kind_margin``.
 
 The clustering by cross-stop consistency and the per-stop rigid refinement go beyond the
 chapter (a batch relative of its Section 6 mapping; the refinement is a block-coordinate

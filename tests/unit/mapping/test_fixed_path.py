@@ -169,7 +169,7 @@ def _single(corner=None, point=None, wall=None):
     )
 
 
-def _map_from_stops(room, stops, seed: int):
+def _map_from_stops(room, stops, seed: int, config: FixedPathConfig | None = None):
     poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
     rng = np.random.default_rng(seed)
     pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
@@ -179,16 +179,19 @@ def _map_from_stops(room, stops, seed: int):
         if i % TURN == 0:
             grouper.reset()
         ids.append(grouper.step(z))
-    return map_fixed_path(pairs, ids, poses, ANTENNAS)
+    return map_fixed_path(pairs, ids, poses, ANTENNAS, config)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_corner_seen_with_little_parallax_is_not_lost(seed) -> None:
+def test_keep_ties_keeps_a_corner_seen_with_little_parallax(seed) -> None:
     # stops 0.2 m apart, 4 m from the corner (2.9 deg): its hypotheses agree as a wall
-    # through it as well as at one position; a tie given to the wall lost it
-    res = _map_from_stops(_single(corner=[4.0, 0.0]), [[0.0, 0.0], [0.0, 0.2]], seed).map
-    found = np.vstack([res.corners, res.points])
-    assert len(found) and np.linalg.norm(found - [4.0, 0.0], axis=1).min() < 0.05, found
+    # through it as well as at one position; a tie given to the wall (the default) loses it
+    stops, corner = [[0.0, 0.0], [0.0, 0.2]], [4.0, 0.0]
+    res = _map_from_stops(_single(corner=corner), stops, seed, FixedPathConfig(keep_ties=True))
+    found = np.vstack([res.map.corners, res.map.points])
+    assert len(found) and np.linalg.norm(found - corner, axis=1).min() < 0.05, found
+    res = _map_from_stops(_single(corner=corner), stops, seed)
+    assert len(res.map.corners) + len(res.map.points) == 0
 
 
 THREE_STOPS = [[0.0, 0.0], [0.0, 1.0], [0.5, -0.8]]

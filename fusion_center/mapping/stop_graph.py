@@ -340,6 +340,9 @@ class StopGraphConfig:
     refine_min_matches : int
         Correspondences a stop needs for its in-stop heading drift to be refined (fewer:
         kept at the turn closure's).
+    refine_distance : float
+        Stops closer than this by the graph's estimate give the refinement their reflector
+        correspondences at that estimate, registered or not, m (0: only the registrations).
     """
 
     drive_reset: float = 0.1
@@ -373,6 +376,7 @@ class StopGraphConfig:
     closure_min_links: int = 1
     refine_turns: bool = True
     refine_min_matches: int = 8
+    refine_distance: float = 3.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -408,6 +412,10 @@ class StopGraphConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"StopGraphConfig.{name} must be an integer >= 1, got {v!r}")
+        if not (np.isfinite(self.refine_distance) and self.refine_distance >= 0.0):
+            raise ValueError(
+                f"StopGraphConfig.refine_distance must be >= 0, got {self.refine_distance!r}"
+            )
         if not 0.0 <= self.min_explained <= 1.0:
             raise ValueError(
                 f"StopGraphConfig.min_explained must be in [0, 1], got {self.min_explained!r}"
@@ -1060,12 +1068,14 @@ def refine_turns(
     Unknowns: the poses of stops 1..n-1 and two coefficients ``c_s`` per stop of the
     in-stop heading correction ``turn_basis(f_k) @ c_s`` (:func:`turn_basis`). Residuals:
 
-    * every reflector correspondence of a registration edge ``(i, j)`` (B's reflector and A's
-      wall or point hypothesis nearest at the edge's pose, within ``match_gate``): B's image
+    * every reflector correspondence of a stop pair ``(i, j)``: each pair closer than
+      ``refine_distance`` by ``poses`` at that relative pose, and each other registration
+      edge at its own pose and with its graph weight (B's reflector and A's wall or point
+      hypothesis nearest at that pose, within ``match_gate``): B's image
       rotated by ``turn_basis_j @ c_j`` against A's image rotated by ``turn_basis_i @ c_i``
       and predicted at ``x_i^{-1} (+) x_j`` (:func:`predicted_images`' models), over the
       image scale (``fine_sigma``, both reflectors' scatter, the distance times
-      ``heading_sigma``), times the edge's graph weight and a Cauchy weight per
+      ``heading_sigma``), times the pair's weight and a Cauchy weight per
       correspondence (iteratively reweighted, ``rounds`` times);
     * the odometry edges ``odometry[i]`` = ``(z, C)`` of stop i to i + 1 built without the
       turn's end heading noise, the drive rotated by stop i's end correction ``c_i[0]``;
@@ -1079,25 +1089,34 @@ def refine_turns(
     n = len(stops)
     p0 = np.asarray(poses, float).reshape(n, 3)
     # correspondences of every registration edge at its own pose
+    # the stop pairs: every pair closer than ``refine_distance`` by the graph's estimate,
+    # at that estimate (weight 1), and the registration edges of the other pairs, at their
+    # own pose with their graph weight
+    near: dict[tuple[int, int], tuple[FloatArray, float]] = {}
+    if cfg.refine_distance > 0.0:
+        dist = np.hypot(*(p0[None, :, :2] - p0[:, None, :2]).transpose(2, 0, 1))
+        for i, j in zip(*np.nonzero(np.triu(dist < cfg.refine_distance, 1)), strict=True):
+            near[(int(i), int(j))] = (relative_pose(p0[i], p0[j]), 1.0)
+    for e, w in zip(edges, weights, strict=True):
+        if e.kind != "odometry" and w > 0.0 and (e.i, e.j) not in near:
+            near[(e.i, e.j)] = (e.z, float(w))
     ei, ej, ra, rb, wall, sig, ew = [], [], [], [], [], [], []
-    for e, w in zip(edges, weights, strict=True):  # a few hundred edges
-        if e.kind == "odometry" or w <= 0.0:
-            continue
-        a, b = stops[e.i], stops[e.j]
+    for (i, j), (z, w) in near.items():  # a few hundred stop pairs
+        a, b = stops[i], stops[j]
         if len(a.images) == 0 or len(b.images) == 0:
             continue
         s_b = np.sqrt(
             cfg.fine_sigma**2 + b.image_sigma**2 + np.sum(b.images**2, 1) * cfg.heading_sigma**2
         )
-        pred = predicted_images(a.images, e.z)[0]
+        pred = predicted_images(a.images, z)[0]
         d2 = np.sum((b.images[:, None] - pred[None]) ** 2, -1)
         d2 = np.where(np.isnan(d2), np.inf, d2)
         h = np.argmin(d2, 1)
         ok = np.sqrt(d2[np.arange(len(h)), h]) < cfg.match_gate * s_b
         jm, hm = np.flatnonzero(ok), h[ok]
         r_a = hm % len(a.images)
-        ei.append(np.full(jm.size, e.i))
-        ej.append(np.full(jm.size, e.j))
+        ei.append(np.full(jm.size, i))
+        ej.append(np.full(jm.size, j))
         ra.append(r_a)
         rb.append(jm)
         wall.append(hm < len(a.images))

@@ -196,13 +196,20 @@ def scan_log_from_pairs(
     return ScanLog(t=ts, odometry=odo, pairs=zs, groups=groups)
 
 
-def segment_stops(odometry: npt.ArrayLike, drive_reset: float = 0.1) -> list[tuple[int, int]]:
+def segment_stops(
+    odometry: npt.ArrayLike, drive_reset: float = 0.1, move_step: float = 0.02
+) -> list[tuple[int, int]]:
     """Index ranges ``[start, end)`` of the stops: an odometry step longer than
-    ``drive_reset`` (m) starts a new stop (the acquisition after the drive is its first)."""
+    ``drive_reset`` (m) starts a new stop (the acquisition after the drive is its first),
+    and so does a step longer than ``move_step`` (m): a drive sampled in several shorter
+    steps leaves one-acquisition segments (no turn, no reflectors) and the stop after it
+    starts at the acquisition after its last step. A turn on the spot moves by millimetres
+    per step (room_pillar, corridor_L: at most 9 mm)."""
     o = np.asarray(odometry, float).reshape(-1, 3)
     if o.shape[0] == 0:
         return []
-    starts = np.r_[0, np.flatnonzero(np.hypot(o[1:, 0], o[1:, 1]) > drive_reset) + 1]
+    step = min(drive_reset, move_step)
+    starts = np.r_[0, np.flatnonzero(np.hypot(o[1:, 0], o[1:, 1]) > step) + 1]
     ends = np.r_[starts[1:], o.shape[0]]
     return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
 
@@ -274,6 +281,12 @@ class StopGraphConfig:
     ----------
     drive_reset : float
         Odometry step (m) that starts a new stop (``MapperConfig.drive_reset``).
+    move_step : float
+        Odometry step (m) that also starts a new segment (a drive sampled in several
+        steps, :func:`segment_stops`).
+    min_stop_acquisitions : int
+        Acquisitions a stop needs for reflectors to be formed (and registrations tried):
+        a segment of a drive or of a robot that never stops has none.
     spot_translation : float
         Net odometry displacement of a stop (m) up to which it is a turn on the spot (plus
         3.5 sigma of the per-step translation floor, as ``MapperConfig``).
@@ -346,6 +359,8 @@ class StopGraphConfig:
     """
 
     drive_reset: float = 0.1
+    move_step: float = 0.02
+    min_stop_acquisitions: int = 10
     spot_translation: float = 0.05
     slip_translation: float = 0.02
     slip_rotation: float = 0.03
@@ -381,6 +396,7 @@ class StopGraphConfig:
     def __post_init__(self) -> None:
         for name in (
             "drive_reset",
+            "move_step",
             "coarse_sigma",
             "fine_sigma",
             "match_gate",
@@ -408,6 +424,7 @@ class StopGraphConfig:
             "closure_min_links",
             "max_coarse_cells",
             "refine_min_matches",
+            "min_stop_acquisitions",
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
@@ -494,7 +511,7 @@ def stop_scan(
         phase=frac,
     )
     k = np.concatenate([np.full(len(z), i) for i, z in enumerate(pairs)]).astype(np.intp)
-    if not on_spot or k.size == 0:
+    if not on_spot or k.size == 0 or n < cfg.min_stop_acquisitions:
         return empty
     z = np.concatenate([np.reshape(p, (-1, 2)) for p in pairs])
     gid = np.concatenate([np.asarray(g, np.int64) for g in groups])
@@ -1093,10 +1110,13 @@ def refine_turns(
     # at that estimate (weight 1), and the registration edges of the other pairs, at their
     # own pose with their graph weight
     near: dict[tuple[int, int], tuple[FloatArray, float]] = {}
-    if cfg.refine_distance > 0.0:
-        dist = np.hypot(*(p0[None, :, :2] - p0[:, None, :2]).transpose(2, 0, 1))
+    has = np.flatnonzero([len(st.images) > 0 for st in stops])
+    if cfg.refine_distance > 0.0 and has.size > 1:
+        q = p0[has]
+        dist = np.hypot(*(q[None, :, :2] - q[:, None, :2]).transpose(2, 0, 1))
         for i, j in zip(*np.nonzero(np.triu(dist < cfg.refine_distance, 1)), strict=True):
-            near[(int(i), int(j))] = (relative_pose(p0[i], p0[j]), 1.0)
+            a_, b_ = int(has[i]), int(has[j])
+            near[(a_, b_)] = (relative_pose(p0[a_], p0[b_]), 1.0)
     for e, w in zip(edges, weights, strict=True):
         if e.kind != "odometry" and w > 0.0 and (e.i, e.j) not in near:
             near[(e.i, e.j)] = (e.z, float(w))
@@ -1249,6 +1269,9 @@ class StopGraphResult:
     turn_coefficients : ndarray, shape (S, 2)
         Each stop's in-stop heading correction of the joint refinement (rad, over
         :func:`turn_basis`; zeros without it), already in ``stops``' poses and ``trajectory``.
+    n_registered : int
+        Accepted registrations in the graph. 0: the path is the odometry with the turn
+        closure alone (no stop had reflectors to register, e.g. no turns on the spot).
     """
 
     trajectory: FloatArray
@@ -1258,6 +1281,7 @@ class StopGraphResult:
     edge_weights: FloatArray
     registrations: list[tuple[int, int, Registration]] = field(default_factory=list)
     turn_coefficients: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    n_registered: int = 0
 
 
 class StopGraphPathEstimator:
@@ -1334,9 +1358,12 @@ class StopGraphPathEstimator:
         cfg = self.config
         if log.t.size == 0:
             raise ValueError("no acquisitions to estimate a path from")
-        segs = segment_stops(log.odometry, cfg.drive_reset)
+        segs = segment_stops(log.odometry, cfg.drive_reset, cfg.move_step)
         stops = [stop_scan(log, s, e, self.closer, cfg) for s, e in segs]
         n = len(stops)
+        # stops with too few reflectors are never registered (a drive's segments, a robot
+        # that never stops): no call, no record, no loop candidates
+        usable = np.array([len(st.images) >= cfg.min_matched for st in stops])
         graph = StopPoseGraph(n, cfg.cauchy_scale)
         init = np.zeros((n, 3))
         regs: list[tuple[int, int, Registration]] = []
@@ -1344,10 +1371,13 @@ class StopGraphPathEstimator:
         for i in range(n - 1):
             z, cov = self.odometry_edge(log, stops[i], stops[i + 1])
             graph.add(GraphEdge(i=i, j=i + 1, z=z, cov=cov, robust=False))
+            step = z
+            if not (usable[i] and usable[i + 1]):
+                init[i + 1] = compose_poses(init[i : i + 1], step)[0]
+                continue
             reg = self.registration.register_both(stops[i], stops[i + 1], z, cov)
             regs.append((i, i + 1, reg))
             tried.add((i, i + 1))
-            step = z
             if reg.accepted:
                 graph.add(
                     GraphEdge(i=i, j=i + 1, z=reg.pose, cov=reg.cov, robust=True, kind="scan")
@@ -1358,15 +1388,17 @@ class StopGraphPathEstimator:
         loop_cov = np.diag(
             [cfg.loop_window[0] ** 2, cfg.loop_window[0] ** 2, cfg.loop_window[1] ** 2]
         )
-        for _ in range(cfg.loop_rounds):
+        cand = np.flatnonzero(usable)
+        for _ in range(cfg.loop_rounds if cand.size > 2 else 0):
             added = 0
             # the search spans the current estimate's own uncertainty (the graph's marginal
             # of the relative pose), at least ``loop_window``: a fixed narrow window around
             # a stretch the graph holds only by odometry found wrong local matches
             joint = graph.covariance(poses, wt)
-            for i in range(n):
-                d = np.hypot(*(poses[i + 2 :, :2] - poses[i, :2]).T)
-                for j in (np.flatnonzero(d < cfg.loop_distance) + i + 2).tolist():
+            for i in cand.tolist():
+                later = cand[cand >= i + 2]
+                d = np.hypot(*(poses[later, :2] - poses[i, :2]).T)
+                for j in later[d < cfg.loop_distance].tolist():
                     if (i, j) in tried:
                         continue
                     tried.add((i, j))
@@ -1408,6 +1440,7 @@ class StopGraphPathEstimator:
             edge_weights=wt,
             registrations=regs,
             turn_coefficients=coef,
+            n_registered=sum(1 for e in graph.edges if e.kind != "odometry"),
         )
 
 

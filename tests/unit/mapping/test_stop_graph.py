@@ -308,3 +308,61 @@ def test_refine_turns_leaves_stops_with_few_correspondences() -> None:
     poses, coef, _ = refine_turns([st, b], [edge], np.ones(1), init, odo, StopGraphConfig())
     np.testing.assert_array_equal(coef, 0.0)
     np.testing.assert_array_equal(poses, init)
+
+
+def test_a_drive_sampled_in_several_steps_still_separates_the_stops() -> None:
+    """The stop-and-turn run with every drive sampled in four steps (each shorter than
+    ``drive_reset``): the three intermediate acquisitions become segments of their own,
+    the stops keep their 120 acquisitions, get reflectors and registrations, and the path
+    is as good as with one-step drives."""
+    rng = np.random.default_rng(3)
+    turns = stop_and_turn_poses(STOPS, 120, np.radians(3.0))
+    turns[:, 2] += 0.3
+    rows = [turns[:120]]
+    for k in range(1, len(STOPS)):
+        last, nxt = turns[120 * k - 1], turns[120 * k]
+        f = np.array([0.25, 0.5, 0.75])[:, None]
+        drive = np.column_stack([last[:2] + f * (nxt[:2] - last[:2]), np.full(3, last[2])])
+        rows += [drive, turns[120 * k : 120 * (k + 1)]]
+    poses = np.vstack(rows)
+    odo = odometry_increments(poses, rng)
+    room = rectangle_room()
+    pairs = [echo_pairs(room, p, ANTENNAS, rng, sigma=0.005, beam=np.radians(50.0)) for p in poses]
+    log = scan_log_from_pairs(np.arange(len(poses)) * 0.05, odo, pairs)
+    assert np.all(np.hypot(odo[:, 0], odo[:, 1]) < 0.5)  # no single step is the whole drive
+    segs = segment_stops(log.odometry)
+    long = [(a, b) for a, b in segs if b - a > 1]
+    assert [b - a for a, b in long] == [120] * len(STOPS)
+    res = StopGraphPathEstimator(ANTENNAS).estimate(log)
+    assert res.n_registered >= 3
+    truth = _in_first_frame(poses)
+    pos = np.hypot(*(res.trajectory[:, 1:3] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(pos**2)) < 0.025
+
+
+def test_a_robot_that_never_stops_is_cheap_and_flagged() -> None:
+    """400 acquisitions 0.2 m apart round a 2 x 2 m loop (no turn on the spot): no stop
+    gets reflectors, no registration is tried, ``n_registered`` is 0 and the path is the
+    odometry's; in well under a second of work per hundred acquisitions."""
+    import time
+
+    rng = np.random.default_rng(0)
+    s = np.arange(400) * 0.2 % 8.0
+    side = (s // 2.0).astype(int)
+    u = s % 2.0
+    corners = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    dirs = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    xy = corners[side] + u[:, None] * dirs[side] + 1.5
+    poses = np.column_stack([xy, np.arctan2(dirs[side, 1], dirs[side, 0])])
+    odo = odometry_increments(poses, rng)
+    room = rectangle_room()
+    pairs = [echo_pairs(room, p, ANTENNAS, rng, sigma=0.005) for p in poses]
+    log = scan_log_from_pairs(np.arange(len(poses)) * 0.05, odo, pairs)
+    c0 = time.process_time()
+    res = StopGraphPathEstimator(ANTENNAS).estimate(log)
+    assert time.process_time() - c0 < 4.0
+    assert res.registrations == [] and res.n_registered == 0
+    dr = _dead_reckoning(log.odometry)
+    np.testing.assert_allclose(res.trajectory[:, 1:3], dr[:, :2], atol=1e-6)
+    dyaw = (res.trajectory[:, 3] - dr[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(dyaw, 0.0, atol=1e-6)

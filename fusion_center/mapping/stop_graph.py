@@ -18,7 +18,9 @@ grid search).
    reflectors: the echo tracks joined into reflectors fixed in the stop frame, each with its
    image point ``T'`` (eq. (11) and Fig. 19 of the chapter: the transmitter mirrored in a
    wall, point-reflected in a corner; a point scatterer's echoes invert to about twice its
-   position, within millimetres at metres of range).
+   position, pushed out radially by about ``|rx|^2 cos^2(beta) / (4 d)``: 2-4 cm at 1.5-3 m
+   for the recorder's receivers 0.5 m off the transmitter, which the point hypothesis
+   models, :func:`predicted_images`' ``point_bias``).
 3. **Registration** (:class:`ReflectorRegistration`): the pose of stop B in stop A's frame
    that best explains B's reflector images by A's reflectors, each of A's taken as a wall
    (the same line seen from B: ``T'_B = t + 2 (d - n . t) n``) or as a corner or point (the
@@ -249,6 +251,13 @@ class StopScan:
     phase : ndarray, shape (n,)
         Phase ``f_k`` of each acquisition in the turn: the odometry's heading since the
         first acquisition over the whole turn's (0 .. 1; zeros when the stop does not turn).
+    odometry_sigma : float
+        Standard deviation of the odometry's own heading at the end of the turn (its summed
+        slip noise), rad; NaN when unknown.
+    closure_rms : float
+        RMS over the turn of the closure's marginal standard deviation of the corrected
+        headings (:attr:`~fusion_center.mapping.turn_closure.TurnClosure.rms_sigma`), rad;
+        NaN when not closed or unknown.
     """
 
     start: int
@@ -262,15 +271,26 @@ class StopScan:
     image_sigma: FloatArray
     turn_basis: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     phase: FloatArray = field(default_factory=lambda: np.zeros(0))
+    odometry_sigma: float = float("nan")
+    closure_rms: float = float("nan")
 
     @property
     def heading_rms(self) -> float:
         """RMS over the turn of the in-stop heading's standard deviation, rad: a random walk
         that reaches ``end_sigma`` at the end (``end_sigma / sqrt(2)``), or, when the
-        closure tied the end to the start, a bridge (``end_sigma / sqrt(6)``). A reflector
-        is seen somewhere in the turn, so its image shares this error; the errors of one
-        stop's reflectors are correlated, which the registration's covariance must keep."""
-        return float(self.end_sigma / np.sqrt(6.0 if self.closed else 2.0))
+        closure corrected the stop, the closure's own marginal over the turn
+        (``closure_rms``, with ``StopGraphConfig.closure_marginal``: the inverse of its
+        normal matrix; without it the first round's ``end_sigma / sqrt(6)``, about 3 times
+        too small, review M1). The
+        closure's ``end_sigma`` is not the mid-turn error (room_pillar: 0.55 deg median,
+        against 0.74 deg RMS against truth). A reflector is seen somewhere in the turn, so
+        its image shares this error; the errors of one stop's reflectors are correlated,
+        which the registration's covariance must keep."""
+        if not self.closed:
+            return float(self.end_sigma / np.sqrt(2.0))
+        if np.isfinite(self.closure_rms):
+            return float(self.closure_rms)
+        return float(self.end_sigma / np.sqrt(6.0))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -347,6 +367,21 @@ class StopGraphConfig:
     closure_min_links : int
         ``TurnClosureConfig.min_links`` of the stops' turn closures (reflectors seen at both
         ends of the turn).
+    pair_count_weight : bool
+        The registration's refinement weights each reflector by the square root of its
+        pairs, with its whole scatter as its scale (review M2: the mismatch and heading
+        noise do not average over the pairs). False: weight 1, scale with the scatter over
+        the pairs' square root. Default True: False together with ``point_scatterers`` and
+        ``closure_marginal`` was worse on room_pillar seed 0 (0.107 -> 0.144 m) and
+        corridor_L (0.066 -> 0.091 m); not yet measured one at a time.
+    point_scatterers : bool
+        Predict point scatterers as a hypothesis of their own, with the bias of their
+        images (:func:`predicted_images`' ``point_bias``; review M4). Default False (see
+        ``pair_count_weight``).
+    closure_marginal : bool
+        A closed stop's :attr:`StopScan.heading_rms` is the closure's own marginal over the
+        turn (review M1; ``end_sigma / sqrt(6)`` is about 3 times too small). Default False
+        (see ``pair_count_weight``).
     refine_turns : bool
         After the pose graph, refine the stop poses and every stop's in-stop heading drift
         jointly over the registrations' reflector correspondences (:func:`refine_turns`).
@@ -390,6 +425,9 @@ class StopGraphConfig:
     loop_rounds: int = 3
     closure_min_links: int = 1
     refine_turns: bool = True
+    pair_count_weight: bool = True
+    point_scatterers: bool = False
+    closure_marginal: bool = False
     refine_min_matches: int = 8
     refine_distance: float = 3.0
 
@@ -488,12 +526,15 @@ def stop_scan(
     groups = log.groups[start:end]
     e = np.zeros(n)
     s_step = cfg.slip_rotation * np.abs(dyaw[1:]) + cfg.slip_floor[1]
-    end_sigma = float(np.sqrt(np.sum(s_step**2)))
+    end_sigma = odo_sigma = float(np.sqrt(np.sum(s_step**2)))
     closed = False
+    closure_rms = float("nan")
     if on_spot and n > 2:
         res = closer.close(dyaw, list(pairs), list(groups))
         if np.isfinite(res.end_sigma):
             e, end_sigma, closed = res.correction, float(res.end_sigma), True
+            if cfg.closure_marginal:
+                closure_rms = float(res.rms_sigma)
     theta = phi + e
     poses = np.column_stack([pos[:, :2] * (not on_spot), theta])
     # phase of the turn, for the in-stop heading's drift model (joint refinement)
@@ -509,6 +550,8 @@ def stop_scan(
         weights=np.zeros(0),
         image_sigma=np.zeros(0),
         phase=frac,
+        odometry_sigma=odo_sigma,
+        closure_rms=closure_rms,
     )
     k = np.concatenate([np.full(len(z), i) for i, z in enumerate(pairs)]).astype(np.intp)
     if not on_spot or k.size == 0 or n < cfg.min_stop_acquisitions:
@@ -549,6 +592,8 @@ def stop_scan(
         image_sigma=scatter,
         turn_basis=gb,
         phase=frac,
+        odometry_sigma=odo_sigma,
+        closure_rms=closure_rms,
     )
 
 
@@ -627,9 +672,10 @@ class Registration:
     reason: str = ""
 
 
-def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
+def predicted_images(images_a: FloatArray, pose: FloatArray, point_bias: float = 0.0) -> FloatArray:
     """Images of A's reflectors (R, 2; A frame) as stop B at ``pose`` (n, 3) would see them,
-    in B's frame, under each hypothesis: shape (n, 2R, 2), walls first, then points.
+    in B's frame, under each hypothesis: shape (n, 2R, 2), walls first, then corners or points
+    (and point scatterers with ``point_bias``, below).
 
     With A's transmitter at its origin, reflector ``I`` is the wall ``n . x = d`` with
     ``n = I / |I|``, ``d = |I| / 2`` (the perpendicular bisector, :func:`~fusion_center.
@@ -641,6 +687,13 @@ def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
 
     both rotated into B's frame: ``R(-yaw) (T' - t)``. A wall B sees from behind
     (``d - n . t <= 0.05``) is NaN.
+
+    ``point_bias`` (``kappa``, m^2): the circles' intersection of a point scatterer's two
+    ellipse ranges (:func:`~fusion_center.mapping.models.invert_image`) lies about
+    ``kappa / (2 |I|)`` beyond ``2 c`` (``kappa = |rx|^2 cos^2(beta)``, receivers ``|rx|``
+    off the transmitter, bearing ``beta``: a second-order expansion, checked against the
+    exact inversion); a corner's image is exact. When it is not 0 a third hypothesis, the
+    point scatterer, removes A's bias and adds B's: shape (n, 3R, 2).
     """
     q = np.asarray(pose, float).reshape(-1, 3)
     t = q[:, None, :2]
@@ -650,9 +703,22 @@ def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
     wall = 2.0 * s[..., None] * nrm[None]  # T' - t
     wall = np.where((s > 0.05)[..., None], wall, np.nan)
     point = images_a[None] - 2.0 * t
-    rel = np.concatenate([wall, point], axis=1)  # (n, 2R, 2), A-frame axes
+    blocks = [wall, point]
+    if point_bias != 0.0:
+        # a point scatterer (not a corner, whose image is exact): a third hypothesis
+        scat = _point_bias(images_a, -point_bias)[None] - 2.0 * t
+        blocks.append(_point_bias(scat.reshape(-1, 2), point_bias).reshape(scat.shape))
+    rel = np.concatenate(blocks, axis=1)  # (n, 2R, 2), A-frame axes
     c, sn = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
     return np.stack([c * rel[..., 0] + sn * rel[..., 1], -sn * rel[..., 0] + c * rel[..., 1]], -1)
+
+
+def _point_bias(images: FloatArray, kappa: float) -> FloatArray:
+    """Images (m, 2) pushed out radially by ``kappa / (2 |I|)`` (in by a negative one)."""
+    if kappa == 0.0:
+        return images
+    r = np.maximum(np.linalg.norm(images, axis=-1, keepdims=True), 1e-9)
+    return images * (1.0 + kappa / (2.0 * r**2))
 
 
 class ReflectorRegistration:
@@ -675,14 +741,15 @@ class ReflectorRegistration:
     Correlative scan matching (Olson 2009) on reflectors; beyond the chapter.
     """
 
-    def __init__(self, config: StopGraphConfig | None = None) -> None:
+    def __init__(self, config: StopGraphConfig | None = None, point_bias: float = 0.0) -> None:
         self.config = config or StopGraphConfig()
+        self.point_bias = float(point_bias)
 
     def _scores(
         self, poses: FloatArray, a: StopScan, b: StopScan, sigma: float, heading: float = 0.0
     ) -> tuple[FloatArray, FloatArray]:
         """Log-likelihood (n,) and the best hypothesis' squared distance (n, Rb)."""
-        pred = predicted_images(a.images, poses)  # (n, H, 2)
+        pred = predicted_images(a.images, poses, self.point_bias)  # (n, H, 2)
         d2 = np.sum((b.images[None, :, None, :] - pred[:, None]) ** 2, -1)  # (n, Rb, H)
         d2 = np.where(np.isnan(d2), np.inf, d2)
         best = d2.min(-1)
@@ -827,14 +894,22 @@ class ReflectorRegistration:
         Jacobian (3 parameters). Returns the pose, its covariance (without the prior, with
         the floor) and the explained mask over B's reflectors."""
         cfg = self.config
-        sig = self._sigma(b, cfg.fine_sigma, a)
-        gate = cfg.match_gate * sig
-        w = np.sqrt(b.weights)
+        gate = cfg.match_gate * self._sigma(b, cfg.fine_sigma, a)
+        # information of a reflector: its model mismatch and heading error are common to
+        # all its pairs; only its pairs' scatter averages over them (no sqrt(N) weight)
+        if cfg.pair_count_weight:
+            sig = self._sigma(b, cfg.fine_sigma, a)
+            w = np.sqrt(b.weights)
+        else:
+            sig = self._sigma(
+                replace(b, image_sigma=b.image_sigma / np.sqrt(b.weights)), cfg.fine_sigma, a
+            )
+            w = np.ones(len(b.weights))
         q = pose.copy()
         mask = np.zeros(len(b.images), bool)
         cov = np.diag(np.array([cfg.window[0], cfg.window[0], cfg.window[1]]) ** 2)
         for _ in range(8):
-            pred = predicted_images(a.images, q)[0]  # (H, 2)
+            pred = predicted_images(a.images, q, self.point_bias)[0]  # (H, 2)
             d2 = np.sum((b.images[:, None] - pred[None]) ** 2, -1)
             d2 = np.where(np.isnan(d2), np.inf, d2)
             h = np.argmin(d2, 1)
@@ -844,7 +919,7 @@ class ReflectorRegistration:
             jm, hm = np.flatnonzero(mask), h[mask]
 
             def resid(p: FloatArray, jm: npt.NDArray = jm, hm: npt.NDArray = hm) -> FloatArray:
-                pr = predicted_images(a.images, p)[0][hm]
+                pr = predicted_images(a.images, p, self.point_bias)[0][hm]
                 return ((b.images[jm] - pr) / sig[jm, None]).ravel()
 
             r = resid(q)
@@ -870,6 +945,16 @@ class ReflectorRegistration:
             q = q + step
             if np.all(np.abs(step) < [1e-5, 1e-5, 1e-6]):
                 break
+        # the normal matrix at the final pose (the loop's is from before its last step)
+        r = resid(q)
+        for i, eps in enumerate((1e-4, 1e-4, 1e-5)):
+            dq = np.zeros(3)
+            dq[i] = eps
+            jac[:, i] = (resid(q + dq) - r) / eps
+        cw = 1.0 / (1.0 + np.sum(r.reshape(-1, 2) ** 2, 1) / (2 * cfg.match_gate**2))
+        a_mat = jac.T @ (np.repeat(w[jm] * cw, 2)[:, None] * jac)
+        if not np.all(np.isfinite(a_mat)):
+            return None, cov, mask
         try:
             cov = np.linalg.inv(a_mat + np.diag([1e-6, 1e-6, 1e-6]))
         except np.linalg.LinAlgError:
@@ -1077,6 +1162,7 @@ def refine_turns(
     odometry: Sequence[tuple[FloatArray, FloatArray]],
     config: StopGraphConfig,
     rounds: int = 3,
+    point_bias: float = 0.0,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Joint refinement of the stop poses and every stop's in-stop heading error over the
     reflector correspondences of the accepted registrations (a small bundle adjustment;
@@ -1120,7 +1206,7 @@ def refine_turns(
     for e, w in zip(edges, weights, strict=True):
         if e.kind != "odometry" and w > 0.0 and (e.i, e.j) not in near:
             near[(e.i, e.j)] = (e.z, float(w))
-    ei, ej, ra, rb, wall, sig, ew = [], [], [], [], [], [], []
+    ei, ej, ra, rb, wall, sig, ew, kind = [], [], [], [], [], [], [], []
     for (i, j), (z, w) in near.items():  # a few hundred stop pairs
         a, b = stops[i], stops[j]
         if len(a.images) == 0 or len(b.images) == 0:
@@ -1128,13 +1214,14 @@ def refine_turns(
         s_b = np.sqrt(
             cfg.fine_sigma**2 + b.image_sigma**2 + np.sum(b.images**2, 1) * cfg.heading_sigma**2
         )
-        pred = predicted_images(a.images, z)[0]
+        pred = predicted_images(a.images, z, point_bias)[0]
         d2 = np.sum((b.images[:, None] - pred[None]) ** 2, -1)
         d2 = np.where(np.isnan(d2), np.inf, d2)
         h = np.argmin(d2, 1)
         ok = np.sqrt(d2[np.arange(len(h)), h]) < cfg.match_gate * s_b
         jm, hm = np.flatnonzero(ok), h[ok]
         r_a = hm % len(a.images)
+        kind.append(hm // len(a.images))
         ei.append(np.full(jm.size, i))
         ej.append(np.full(jm.size, j))
         ra.append(r_a)
@@ -1151,6 +1238,7 @@ def refine_turns(
 
     ei, ej, ra, rb = (cat(v, np.intp) for v in (ei, ej, ra, rb))
     wall, sig, ew = cat(wall, bool), cat(sig, float), cat(ew, float)
+    scat = cat(kind, np.intp) == 2
     img_a = np.array([stops[i].images[r] for i, r in zip(ei, ra, strict=True)]).reshape(-1, 2)
     img_b = np.array([stops[j].images[r] for j, r in zip(ej, rb, strict=True)]).reshape(-1, 2)
     g_a = np.array([stops[i].turn_basis[r] for i, r in zip(ei, ra, strict=True)]).reshape(-1, 2)
@@ -1194,7 +1282,12 @@ def refine_turns(
         norm = np.maximum(np.linalg.norm(ia, axis=1), 1e-9)
         nrm = ia / norm[:, None]
         sw = 0.5 * norm - np.sum(nrm * t, 1)
-        rel = np.where(wall[:, None], 2.0 * sw[:, None] * nrm, ia - 2.0 * t)
+        pt = np.where(
+            scat[:, None],
+            _point_bias(_point_bias(ia, -point_bias) - 2.0 * t, point_bias),
+            ia - 2.0 * t,
+        )
+        rel = np.where(wall[:, None], 2.0 * sw[:, None] * nrm, pt)
         pred = _rotate(rel, -(pj[:, 2] - pi[:, 2]))
         return (ib - pred) / sig[:, None]
 
@@ -1316,7 +1409,10 @@ class StopGraphPathEstimator:
                 min_links=cfg.closure_min_links,
             ),
         )
-        self.registration = ReflectorRegistration(cfg)
+        # the point images' bias, averaged over the horns' +-60 degrees (mean cos^2 0.71)
+        self.point_bias = 0.71 * float(np.mean(np.sum((ant[1:] - ant[0]) ** 2, 1)))
+        self.point_bias *= float(cfg.point_scatterers)
+        self.registration = ReflectorRegistration(cfg, self.point_bias)
 
     def odometry_edge(
         self, log: ScanLog, a: StopScan, b: StopScan
@@ -1420,7 +1516,9 @@ class StopGraphPathEstimator:
                 self.odometry_edge(log, replace(stops[i], end_sigma=0.0), stops[i + 1])
                 for i in range(n - 1)
             ]
-            poses, coef, _ = refine_turns(stops, graph.edges, wt, poses, odo, cfg)
+            poses, coef, _ = refine_turns(
+                stops, graph.edges, wt, poses, odo, cfg, point_bias=self.point_bias
+            )
             stops = [
                 replace(
                     st, poses=st.poses + np.c_[0.0, 0.0, 1.0] * (turn_basis(st.phase) @ c)[:, None]

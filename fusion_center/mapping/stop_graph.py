@@ -18,7 +18,9 @@ grid search).
    reflectors: the echo tracks joined into reflectors fixed in the stop frame, each with its
    image point ``T'`` (eq. (11) and Fig. 19 of the chapter: the transmitter mirrored in a
    wall, point-reflected in a corner; a point scatterer's echoes invert to about twice its
-   position, within millimetres at metres of range).
+   position, pushed out radially by about ``|rx|^2 cos^2(beta) / (4 d)``: 2-4 cm at 1.5-3 m
+   for the recorder's receivers 0.5 m off the transmitter, which the point hypothesis
+   models, :func:`predicted_images`' ``point_bias``).
 3. **Registration** (:class:`ReflectorRegistration`): the pose of stop B in stop A's frame
    that best explains B's reflector images by A's reflectors, each of A's taken as a wall
    (the same line seen from B: ``T'_B = t + 2 (d - n . t) n``) or as a corner or point (the
@@ -29,7 +31,11 @@ grid search).
    consecutive stops and loop closures between stops close by the current estimate, solved
    by :func:`scipy.optimize.least_squares` (sparse Jacobian) with a Cauchy weight per
    registration edge; solve, look for loop closures around the new estimate, solve again.
-5. Output (:meth:`StopGraphPathEstimator.estimate`): ``[t, x, y, yaw]`` of every acquisition
+5. **Joint refinement** (:func:`refine_turns`): the stop poses and every stop's in-stop
+   heading drift (two coefficients over the turn, :func:`turn_basis`) over the reflector
+   correspondences of the accepted registrations, the odometry edges and a prior on the
+   drift: the turn closure's in-stop headings were the registrations' main error.
+6. Output (:meth:`StopGraphPathEstimator.estimate`): ``[t, x, y, yaw]`` of every acquisition
    in the frame of the first pose (the stop's pose and its corrected in-stop heading), the
    layout of map.json's trajectory.
 
@@ -42,7 +48,7 @@ Pure numpy / scipy; poses ``[x, y, yaw]`` (m, rad), ranges bistatic (m).
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -192,13 +198,20 @@ def scan_log_from_pairs(
     return ScanLog(t=ts, odometry=odo, pairs=zs, groups=groups)
 
 
-def segment_stops(odometry: npt.ArrayLike, drive_reset: float = 0.1) -> list[tuple[int, int]]:
+def segment_stops(
+    odometry: npt.ArrayLike, drive_reset: float = 0.1, move_step: float = 0.02
+) -> list[tuple[int, int]]:
     """Index ranges ``[start, end)`` of the stops: an odometry step longer than
-    ``drive_reset`` (m) starts a new stop (the acquisition after the drive is its first)."""
+    ``drive_reset`` (m) starts a new stop (the acquisition after the drive is its first),
+    and so does a step longer than ``move_step`` (m): a drive sampled in several shorter
+    steps leaves one-acquisition segments (no turn, no reflectors) and the stop after it
+    starts at the acquisition after its last step. A turn on the spot moves by millimetres
+    per step (room_pillar, corridor_L: at most 9 mm)."""
     o = np.asarray(odometry, float).reshape(-1, 3)
     if o.shape[0] == 0:
         return []
-    starts = np.r_[0, np.flatnonzero(np.hypot(o[1:, 0], o[1:, 1]) > drive_reset) + 1]
+    step = min(drive_reset, move_step)
+    starts = np.r_[0, np.flatnonzero(np.hypot(o[1:, 0], o[1:, 1]) > step) + 1]
     ends = np.r_[starts[1:], o.shape[0]]
     return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
 
@@ -231,6 +244,20 @@ class StopScan:
         Echo pairs behind each reflector.
     image_sigma : ndarray, shape (R,)
         Robust scatter of each reflector's pair images, m.
+    turn_basis : ndarray, shape (R, 2)
+        Mean over each reflector's pairs of :func:`turn_basis` at the pair's phase of the
+        turn: the image rotates by ``turn_basis @ c`` when the in-stop headings are
+        corrected by ``turn_basis(f_k) @ c`` (first order; used by the joint refinement).
+    phase : ndarray, shape (n,)
+        Phase ``f_k`` of each acquisition in the turn: the odometry's heading since the
+        first acquisition over the whole turn's (0 .. 1; zeros when the stop does not turn).
+    odometry_sigma : float
+        Standard deviation of the odometry's own heading at the end of the turn (its summed
+        slip noise), rad; NaN when unknown.
+    closure_rms : float
+        RMS over the turn of the closure's marginal standard deviation of the corrected
+        headings (:attr:`~fusion_center.mapping.turn_closure.TurnClosure.rms_sigma`), rad;
+        NaN when not closed or unknown.
     """
 
     start: int
@@ -242,15 +269,28 @@ class StopScan:
     images: FloatArray
     weights: FloatArray
     image_sigma: FloatArray
+    turn_basis: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    phase: FloatArray = field(default_factory=lambda: np.zeros(0))
+    odometry_sigma: float = float("nan")
+    closure_rms: float = float("nan")
 
     @property
     def heading_rms(self) -> float:
         """RMS over the turn of the in-stop heading's standard deviation, rad: a random walk
         that reaches ``end_sigma`` at the end (``end_sigma / sqrt(2)``), or, when the
-        closure tied the end to the start, a bridge (``end_sigma / sqrt(6)``). A reflector
-        is seen somewhere in the turn, so its image shares this error; the errors of one
-        stop's reflectors are correlated, which the registration's covariance must keep."""
-        return float(self.end_sigma / np.sqrt(6.0 if self.closed else 2.0))
+        closure corrected the stop, the closure's own marginal over the turn
+        (``closure_rms``, with ``StopGraphConfig.closure_marginal``: the inverse of its
+        normal matrix; without it the first round's ``end_sigma / sqrt(6)``, about 3 times
+        too small, review M1). The
+        closure's ``end_sigma`` is not the mid-turn error (room_pillar: 0.55 deg median,
+        against 0.74 deg RMS against truth). A reflector is seen somewhere in the turn, so
+        its image shares this error; the errors of one stop's reflectors are correlated,
+        which the registration's covariance must keep."""
+        if not self.closed:
+            return float(self.end_sigma / np.sqrt(2.0))
+        if np.isfinite(self.closure_rms):
+            return float(self.closure_rms)
+        return float(self.end_sigma / np.sqrt(6.0))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -261,6 +301,12 @@ class StopGraphConfig:
     ----------
     drive_reset : float
         Odometry step (m) that starts a new stop (``MapperConfig.drive_reset``).
+    move_step : float
+        Odometry step (m) that also starts a new segment (a drive sampled in several
+        steps, :func:`segment_stops`).
+    min_stop_acquisitions : int
+        Acquisitions a stop needs for reflectors to be formed (and registrations tried):
+        a segment of a drive or of a robot that never stops has none.
     spot_translation : float
         Net odometry displacement of a stop (m) up to which it is a turn on the spot (plus
         3.5 sigma of the per-step translation floor, as ``MapperConfig``).
@@ -321,9 +367,35 @@ class StopGraphConfig:
     closure_min_links : int
         ``TurnClosureConfig.min_links`` of the stops' turn closures (reflectors seen at both
         ends of the turn).
+    pair_count_weight : bool
+        The registration's refinement weights each reflector by the square root of its
+        pairs, with its whole scatter as its scale (review M2: the mismatch and heading
+        noise do not average over the pairs). False: weight 1, scale with the scatter over
+        the pairs' square root. Default True: False together with ``point_scatterers`` and
+        ``closure_marginal`` was worse on room_pillar seed 0 (0.107 -> 0.144 m) and
+        corridor_L (0.066 -> 0.091 m); not yet measured one at a time.
+    point_scatterers : bool
+        Predict point scatterers as a hypothesis of their own, with the bias of their
+        images (:func:`predicted_images`' ``point_bias``; review M4). Default False (see
+        ``pair_count_weight``).
+    closure_marginal : bool
+        A closed stop's :attr:`StopScan.heading_rms` is the closure's own marginal over the
+        turn (review M1; ``end_sigma / sqrt(6)`` is about 3 times too small). Default False
+        (see ``pair_count_weight``).
+    refine_turns : bool
+        After the pose graph, refine the stop poses and every stop's in-stop heading drift
+        jointly over the registrations' reflector correspondences (:func:`refine_turns`).
+    refine_min_matches : int
+        Correspondences a stop needs for its in-stop heading drift to be refined (fewer:
+        kept at the turn closure's).
+    refine_distance : float
+        Stops closer than this by the graph's estimate give the refinement their reflector
+        correspondences at that estimate, registered or not, m (0: only the registrations).
     """
 
     drive_reset: float = 0.1
+    move_step: float = 0.02
+    min_stop_acquisitions: int = 10
     spot_translation: float = 0.05
     slip_translation: float = 0.02
     slip_rotation: float = 0.03
@@ -352,10 +424,17 @@ class StopGraphConfig:
     loop_window: tuple[float, float] = (0.15, np.radians(3.0))
     loop_rounds: int = 3
     closure_min_links: int = 1
+    refine_turns: bool = True
+    pair_count_weight: bool = True
+    point_scatterers: bool = False
+    closure_marginal: bool = False
+    refine_min_matches: int = 8
+    refine_distance: float = 3.0
 
     def __post_init__(self) -> None:
         for name in (
             "drive_reset",
+            "move_step",
             "coarse_sigma",
             "fine_sigma",
             "match_gate",
@@ -382,10 +461,16 @@ class StopGraphConfig:
             "loop_rounds",
             "closure_min_links",
             "max_coarse_cells",
+            "refine_min_matches",
+            "min_stop_acquisitions",
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"StopGraphConfig.{name} must be an integer >= 1, got {v!r}")
+        if not (np.isfinite(self.refine_distance) and self.refine_distance >= 0.0):
+            raise ValueError(
+                f"StopGraphConfig.refine_distance must be >= 0, got {self.refine_distance!r}"
+            )
         if not 0.0 <= self.min_explained <= 1.0:
             raise ValueError(
                 f"StopGraphConfig.min_explained must be in [0, 1], got {self.min_explained!r}"
@@ -441,14 +526,19 @@ def stop_scan(
     groups = log.groups[start:end]
     e = np.zeros(n)
     s_step = cfg.slip_rotation * np.abs(dyaw[1:]) + cfg.slip_floor[1]
-    end_sigma = float(np.sqrt(np.sum(s_step**2)))
+    end_sigma = odo_sigma = float(np.sqrt(np.sum(s_step**2)))
     closed = False
+    closure_rms = float("nan")
     if on_spot and n > 2:
         res = closer.close(dyaw, list(pairs), list(groups))
         if np.isfinite(res.end_sigma):
             e, end_sigma, closed = res.correction, float(res.end_sigma), True
+            if cfg.closure_marginal:
+                closure_rms = float(res.rms_sigma)
     theta = phi + e
     poses = np.column_stack([pos[:, :2] * (not on_spot), theta])
+    # phase of the turn, for the in-stop heading's drift model (joint refinement)
+    frac = phi / phi[-1] if n > 1 and abs(phi[-1]) > np.radians(10.0) else np.zeros(n)
     empty = StopScan(
         start=start,
         end=end,
@@ -459,9 +549,12 @@ def stop_scan(
         images=np.zeros((0, 2)),
         weights=np.zeros(0),
         image_sigma=np.zeros(0),
+        phase=frac,
+        odometry_sigma=odo_sigma,
+        closure_rms=closure_rms,
     )
     k = np.concatenate([np.full(len(z), i) for i, z in enumerate(pairs)]).astype(np.intp)
-    if not on_spot or k.size == 0:
+    if not on_spot or k.size == 0 or n < cfg.min_stop_acquisitions:
         return empty
     z = np.concatenate([np.reshape(p, (-1, 2)) for p in pairs])
     gid = np.concatenate([np.asarray(g, np.int64) for g in groups])
@@ -482,7 +575,11 @@ def stop_scan(
     scatter = 1.4826 * _group_median(dev, label, nr) / np.sqrt(2.0)
     limit = cfg.max_reflector_scatter + cfg.scatter_per_metre * np.hypot(med[:, 0], med[:, 1])
     keep = (cnt >= cfg.min_reflector_pairs) & (scatter <= limit)
-    med, cnt, scatter = _merge_reflectors(med[keep], cnt[keep], scatter[keep], cfg.merge_distance)
+    basis = turn_basis(frac[k])
+    gb = np.column_stack([np.bincount(label, basis[:, j], nr) / cnt for j in range(2)])
+    med, cnt, scatter, gb = _merge_reflectors(
+        med[keep], cnt[keep], scatter[keep], cfg.merge_distance, gb[keep]
+    )
     return StopScan(
         start=start,
         end=end,
@@ -493,18 +590,36 @@ def stop_scan(
         images=med,
         weights=cnt,
         image_sigma=scatter,
+        turn_basis=gb,
+        phase=frac,
+        odometry_sigma=odo_sigma,
+        closure_rms=closure_rms,
     )
 
 
+def turn_basis(phase: npt.ArrayLike) -> FloatArray:
+    """Basis (n, 2) of the in-stop heading error over a turn at phases ``f`` (0 .. 1):
+    ``[f, sin(pi f)]``, a drift that grows to the end of the turn and a bridge that returns
+    to zero at its end. On room_pillar they leave 0.45-0.48 deg RMS of the turn-closed
+    headings' 1.0-1.7 deg (beyond the chapter; a random walk's first two modes)."""
+    f = np.asarray(phase, float).reshape(-1)
+    return np.column_stack([f, np.sin(np.pi * f)])
+
+
 def _merge_reflectors(
-    images: FloatArray, weights: FloatArray, scatter: FloatArray, distance: float
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+    images: FloatArray,
+    weights: FloatArray,
+    scatter: FloatArray,
+    distance: float,
+    basis: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Join reflectors whose images lie within ``distance`` (heaviest first, greedy): the
-    weighted mean image, the summed weight, the weighted scatter plus the images' spread."""
+    weighted mean image, the summed weight, the weighted scatter plus the images' spread,
+    the weighted mean turn basis."""
     order = np.argsort(-weights)
-    images, weights, scatter = images[order], weights[order], scatter[order]
+    images, weights, scatter, basis = images[order], weights[order], scatter[order], basis[order]
     free = np.ones(len(weights), bool)
-    out_i, out_w, out_s = [], [], []
+    out_i, out_w, out_s, out_b = [], [], [], []
     for r in range(len(weights)):  # a handful of reflectors per stop
         if not free[r]:
             continue
@@ -516,7 +631,13 @@ def _merge_reflectors(
         out_i.append(m)
         out_w.append(w.sum())
         out_s.append(float(np.hypot((w * scatter[near]).sum() / w.sum(), spread)))
-    return np.array(out_i).reshape(-1, 2), np.array(out_w), np.array(out_s)
+        out_b.append((w[:, None] * basis[near]).sum(0) / w.sum())
+    return (
+        np.array(out_i).reshape(-1, 2),
+        np.array(out_w),
+        np.array(out_s),
+        np.array(out_b).reshape(-1, 2),
+    )
 
 
 # --------------------------------------------------------------------------- registration
@@ -551,9 +672,10 @@ class Registration:
     reason: str = ""
 
 
-def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
+def predicted_images(images_a: FloatArray, pose: FloatArray, point_bias: float = 0.0) -> FloatArray:
     """Images of A's reflectors (R, 2; A frame) as stop B at ``pose`` (n, 3) would see them,
-    in B's frame, under each hypothesis: shape (n, 2R, 2), walls first, then points.
+    in B's frame, under each hypothesis: shape (n, 2R, 2), walls first, then corners or points
+    (and point scatterers with ``point_bias``, below).
 
     With A's transmitter at its origin, reflector ``I`` is the wall ``n . x = d`` with
     ``n = I / |I|``, ``d = |I| / 2`` (the perpendicular bisector, :func:`~fusion_center.
@@ -565,6 +687,13 @@ def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
 
     both rotated into B's frame: ``R(-yaw) (T' - t)``. A wall B sees from behind
     (``d - n . t <= 0.05``) is NaN.
+
+    ``point_bias`` (``kappa``, m^2): the circles' intersection of a point scatterer's two
+    ellipse ranges (:func:`~fusion_center.mapping.models.invert_image`) lies about
+    ``kappa / (2 |I|)`` beyond ``2 c`` (``kappa = |rx|^2 cos^2(beta)``, receivers ``|rx|``
+    off the transmitter, bearing ``beta``: a second-order expansion, checked against the
+    exact inversion); a corner's image is exact. When it is not 0 a third hypothesis, the
+    point scatterer, removes A's bias and adds B's: shape (n, 3R, 2).
     """
     q = np.asarray(pose, float).reshape(-1, 3)
     t = q[:, None, :2]
@@ -574,9 +703,22 @@ def predicted_images(images_a: FloatArray, pose: FloatArray) -> FloatArray:
     wall = 2.0 * s[..., None] * nrm[None]  # T' - t
     wall = np.where((s > 0.05)[..., None], wall, np.nan)
     point = images_a[None] - 2.0 * t
-    rel = np.concatenate([wall, point], axis=1)  # (n, 2R, 2), A-frame axes
+    blocks = [wall, point]
+    if point_bias != 0.0:
+        # a point scatterer (not a corner, whose image is exact): a third hypothesis
+        scat = _point_bias(images_a, -point_bias)[None] - 2.0 * t
+        blocks.append(_point_bias(scat.reshape(-1, 2), point_bias).reshape(scat.shape))
+    rel = np.concatenate(blocks, axis=1)  # (n, 2R, 2), A-frame axes
     c, sn = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
     return np.stack([c * rel[..., 0] + sn * rel[..., 1], -sn * rel[..., 0] + c * rel[..., 1]], -1)
+
+
+def _point_bias(images: FloatArray, kappa: float) -> FloatArray:
+    """Images (m, 2) pushed out radially by ``kappa / (2 |I|)`` (in by a negative one)."""
+    if kappa == 0.0:
+        return images
+    r = np.maximum(np.linalg.norm(images, axis=-1, keepdims=True), 1e-9)
+    return images * (1.0 + kappa / (2.0 * r**2))
 
 
 class ReflectorRegistration:
@@ -599,14 +741,15 @@ class ReflectorRegistration:
     Correlative scan matching (Olson 2009) on reflectors; beyond the chapter.
     """
 
-    def __init__(self, config: StopGraphConfig | None = None) -> None:
+    def __init__(self, config: StopGraphConfig | None = None, point_bias: float = 0.0) -> None:
         self.config = config or StopGraphConfig()
+        self.point_bias = float(point_bias)
 
     def _scores(
         self, poses: FloatArray, a: StopScan, b: StopScan, sigma: float, heading: float = 0.0
     ) -> tuple[FloatArray, FloatArray]:
         """Log-likelihood (n,) and the best hypothesis' squared distance (n, Rb)."""
-        pred = predicted_images(a.images, poses)  # (n, H, 2)
+        pred = predicted_images(a.images, poses, self.point_bias)  # (n, H, 2)
         d2 = np.sum((b.images[None, :, None, :] - pred[:, None]) ** 2, -1)  # (n, Rb, H)
         d2 = np.where(np.isnan(d2), np.inf, d2)
         best = d2.min(-1)
@@ -751,14 +894,22 @@ class ReflectorRegistration:
         Jacobian (3 parameters). Returns the pose, its covariance (without the prior, with
         the floor) and the explained mask over B's reflectors."""
         cfg = self.config
-        sig = self._sigma(b, cfg.fine_sigma, a)
-        gate = cfg.match_gate * sig
-        w = np.sqrt(b.weights)
+        gate = cfg.match_gate * self._sigma(b, cfg.fine_sigma, a)
+        # information of a reflector: its model mismatch and heading error are common to
+        # all its pairs; only its pairs' scatter averages over them (no sqrt(N) weight)
+        if cfg.pair_count_weight:
+            sig = self._sigma(b, cfg.fine_sigma, a)
+            w = np.sqrt(b.weights)
+        else:
+            sig = self._sigma(
+                replace(b, image_sigma=b.image_sigma / np.sqrt(b.weights)), cfg.fine_sigma, a
+            )
+            w = np.ones(len(b.weights))
         q = pose.copy()
         mask = np.zeros(len(b.images), bool)
         cov = np.diag(np.array([cfg.window[0], cfg.window[0], cfg.window[1]]) ** 2)
         for _ in range(8):
-            pred = predicted_images(a.images, q)[0]  # (H, 2)
+            pred = predicted_images(a.images, q, self.point_bias)[0]  # (H, 2)
             d2 = np.sum((b.images[:, None] - pred[None]) ** 2, -1)
             d2 = np.where(np.isnan(d2), np.inf, d2)
             h = np.argmin(d2, 1)
@@ -768,7 +919,7 @@ class ReflectorRegistration:
             jm, hm = np.flatnonzero(mask), h[mask]
 
             def resid(p: FloatArray, jm: npt.NDArray = jm, hm: npt.NDArray = hm) -> FloatArray:
-                pr = predicted_images(a.images, p)[0][hm]
+                pr = predicted_images(a.images, p, self.point_bias)[0][hm]
                 return ((b.images[jm] - pr) / sig[jm, None]).ravel()
 
             r = resid(q)
@@ -794,6 +945,16 @@ class ReflectorRegistration:
             q = q + step
             if np.all(np.abs(step) < [1e-5, 1e-5, 1e-6]):
                 break
+        # the normal matrix at the final pose (the loop's is from before its last step)
+        r = resid(q)
+        for i, eps in enumerate((1e-4, 1e-4, 1e-5)):
+            dq = np.zeros(3)
+            dq[i] = eps
+            jac[:, i] = (resid(q + dq) - r) / eps
+        cw = 1.0 / (1.0 + np.sum(r.reshape(-1, 2) ** 2, 1) / (2 * cfg.match_gate**2))
+        a_mat = jac.T @ (np.repeat(w[jm] * cw, 2)[:, None] * jac)
+        if not np.all(np.isfinite(a_mat)):
+            return None, cov, mask
         try:
             cov = np.linalg.inv(a_mat + np.diag([1e-6, 1e-6, 1e-6]))
         except np.linalg.LinAlgError:
@@ -984,6 +1145,200 @@ def _sqrt_info(cov: FloatArray) -> FloatArray:
     return (vec / np.sqrt(np.maximum(lam, 1e-12))).T
 
 
+# --------------------------------------------------------------------------- refinement
+
+
+def _rotate(v: FloatArray, a: FloatArray) -> FloatArray:
+    """Vectors ``v`` (m, 2) rotated by angles ``a`` (m,), rad."""
+    c, s = np.cos(a), np.sin(a)
+    return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+
+
+def refine_turns(
+    stops: Sequence[StopScan],
+    edges: Sequence[GraphEdge],
+    weights: FloatArray,
+    poses: FloatArray,
+    odometry: Sequence[tuple[FloatArray, FloatArray]],
+    config: StopGraphConfig,
+    rounds: int = 3,
+    point_bias: float = 0.0,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Joint refinement of the stop poses and every stop's in-stop heading error over the
+    reflector correspondences of the accepted registrations (a small bundle adjustment;
+    beyond the chapter, after Triggs et al., "Bundle adjustment - a modern synthesis", 2000).
+
+    Unknowns: the poses of stops 1..n-1 and two coefficients ``c_s`` per stop of the
+    in-stop heading correction ``turn_basis(f_k) @ c_s`` (:func:`turn_basis`). Residuals:
+
+    * every reflector correspondence of a stop pair ``(i, j)``: each pair closer than
+      ``refine_distance`` by ``poses`` at that relative pose, and each other registration
+      edge at its own pose and with its graph weight (B's reflector and A's wall or point
+      hypothesis nearest at that pose, within ``match_gate``): B's image
+      rotated by ``turn_basis_j @ c_j`` against A's image rotated by ``turn_basis_i @ c_i``
+      and predicted at ``x_i^{-1} (+) x_j`` (:func:`predicted_images`' models), over the
+      image scale (``fine_sigma``, both reflectors' scatter, the distance times
+      ``heading_sigma``), times the pair's weight and a Cauchy weight per
+      correspondence (iteratively reweighted, ``rounds`` times);
+    * the odometry edges ``odometry[i]`` = ``(z, C)`` of stop i to i + 1 built without the
+      turn's end heading noise, the drive rotated by stop i's end correction ``c_i[0]``;
+    * the prior ``c_s ~ N(0, diag(end_sigma^2, (s_odo / 2)^2))``: the turn's end error (the
+      closure's or the odometry's) and the bridge of the odometry's random walk.
+
+    Returns the stop poses (n, 3; stop 0 kept), the coefficients (n, 2), rad, and the final
+    Cauchy weight of every correspondence.
+    """
+    cfg = config
+    n = len(stops)
+    p0 = np.asarray(poses, float).reshape(n, 3)
+    # correspondences of every registration edge at its own pose
+    # the stop pairs: every pair closer than ``refine_distance`` by the graph's estimate,
+    # at that estimate (weight 1), and the registration edges of the other pairs, at their
+    # own pose with their graph weight
+    near: dict[tuple[int, int], tuple[FloatArray, float]] = {}
+    has = np.flatnonzero([len(st.images) > 0 for st in stops])
+    if cfg.refine_distance > 0.0 and has.size > 1:
+        q = p0[has]
+        dist = np.hypot(*(q[None, :, :2] - q[:, None, :2]).transpose(2, 0, 1))
+        for i, j in zip(*np.nonzero(np.triu(dist < cfg.refine_distance, 1)), strict=True):
+            a_, b_ = int(has[i]), int(has[j])
+            near[(a_, b_)] = (relative_pose(p0[a_], p0[b_]), 1.0)
+    for e, w in zip(edges, weights, strict=True):
+        if e.kind != "odometry" and w > 0.0 and (e.i, e.j) not in near:
+            near[(e.i, e.j)] = (e.z, float(w))
+    ei, ej, ra, rb, wall, sig, ew, kind = [], [], [], [], [], [], [], []
+    for (i, j), (z, w) in near.items():  # a few hundred stop pairs
+        a, b = stops[i], stops[j]
+        if len(a.images) == 0 or len(b.images) == 0:
+            continue
+        s_b = np.sqrt(
+            cfg.fine_sigma**2 + b.image_sigma**2 + np.sum(b.images**2, 1) * cfg.heading_sigma**2
+        )
+        pred = predicted_images(a.images, z, point_bias)[0]
+        d2 = np.sum((b.images[:, None] - pred[None]) ** 2, -1)
+        d2 = np.where(np.isnan(d2), np.inf, d2)
+        h = np.argmin(d2, 1)
+        ok = np.sqrt(d2[np.arange(len(h)), h]) < cfg.match_gate * s_b
+        jm, hm = np.flatnonzero(ok), h[ok]
+        r_a = hm % len(a.images)
+        kind.append(hm // len(a.images))
+        ei.append(np.full(jm.size, i))
+        ej.append(np.full(jm.size, j))
+        ra.append(r_a)
+        rb.append(jm)
+        wall.append(hm < len(a.images))
+        s_a = np.hypot(
+            a.image_sigma[r_a], np.linalg.norm(a.images[r_a], axis=1) * cfg.heading_sigma
+        )
+        sig.append(np.hypot(s_b[jm], s_a))
+        ew.append(np.full(jm.size, float(w)))
+
+    def cat(v: list, d: type) -> npt.NDArray:
+        return np.concatenate(v).astype(d) if v else np.zeros(0, d)
+
+    ei, ej, ra, rb = (cat(v, np.intp) for v in (ei, ej, ra, rb))
+    wall, sig, ew = cat(wall, bool), cat(sig, float), cat(ew, float)
+    scat = cat(kind, np.intp) == 2
+    img_a = np.array([stops[i].images[r] for i, r in zip(ei, ra, strict=True)]).reshape(-1, 2)
+    img_b = np.array([stops[j].images[r] for j, r in zip(ej, rb, strict=True)]).reshape(-1, 2)
+    g_a = np.array([stops[i].turn_basis[r] for i, r in zip(ei, ra, strict=True)]).reshape(-1, 2)
+    g_b = np.array([stops[j].turn_basis[r] for j, r in zip(ej, rb, strict=True)]).reshape(-1, 2)
+    m = ei.size
+    # odometry edges and coefficient priors
+    oz = np.array([z for z, _ in odometry]).reshape(-1, 3)
+    osq = np.array([_sqrt_info(c) for _, c in odometry]).reshape(-1, 3, 3)
+    oend = np.array([s.poses[-1, :2] for s in stops[:-1]]).reshape(-1, 2)
+    oi = np.arange(n - 1)
+    s_odo = np.array(
+        [
+            np.sqrt(
+                np.sum(
+                    (cfg.slip_rotation * np.abs(np.diff(s.poses[:, 2])) + cfg.slip_floor[1]) ** 2
+                )
+            )
+            for s in stops
+        ]
+    )
+    prior_sd = np.column_stack(
+        [[max(s.end_sigma, 1e-4) for s in stops], np.maximum(s_odo / 2, 1e-4)]
+    )
+    # a stop's turn is refined only over enough correspondences (corridor_L_sparse: one
+    # wrong registration of 2 correspondences would turn its stops by degrees)
+    touch = np.bincount(np.r_[ei, ej], minlength=n)
+    prior_sd[touch < cfg.refine_min_matches] = 1e-6
+    if not np.any(touch >= cfg.refine_min_matches):
+        return p0.copy(), np.zeros((n, 2)), np.ones(m)
+    cw = np.ones(m)
+
+    def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        p = np.vstack([p0[:1], x[: 3 * (n - 1)].reshape(-1, 3)])
+        return p, x[3 * (n - 1) :].reshape(n, 2)
+
+    def image_residuals(p: FloatArray, c: FloatArray) -> FloatArray:
+        ia = _rotate(img_a, np.sum(g_a * c[ei], 1))
+        ib = _rotate(img_b, np.sum(g_b * c[ej], 1))
+        pi, pj = p[ei], p[ej]
+        t = _rotate(pj[:, :2] - pi[:, :2], -pi[:, 2])
+        norm = np.maximum(np.linalg.norm(ia, axis=1), 1e-9)
+        nrm = ia / norm[:, None]
+        sw = 0.5 * norm - np.sum(nrm * t, 1)
+        pt = np.where(
+            scat[:, None],
+            _point_bias(_point_bias(ia, -point_bias) - 2.0 * t, point_bias),
+            ia - 2.0 * t,
+        )
+        rel = np.where(wall[:, None], 2.0 * sw[:, None] * nrm, pt)
+        pred = _rotate(rel, -(pj[:, 2] - pi[:, 2]))
+        return (ib - pred) / sig[:, None]
+
+    def fun(x: FloatArray) -> FloatArray:
+        p, c = unpack(x)
+        r_img = image_residuals(p, c) * np.sqrt(ew * cw)[:, None]
+        pi, pj = p[oi], p[oi + 1]
+        rel = np.column_stack([_rotate(pj[:, :2] - pi[:, :2], -pi[:, 2]), pj[:, 2] - pi[:, 2]])
+        d_end = c[oi, 0]
+        z = np.column_stack([oend + _rotate(oz[:, :2] - oend, d_end), oz[:, 2] + d_end])
+        d = rel - z
+        d[:, 2] = _wrap(d[:, 2])
+        r_odo = np.einsum("mij,mj->mi", osq, d)
+        return np.concatenate([r_img.ravel(), r_odo.ravel(), (c / prior_sd).ravel()])
+
+    nv = 3 * (n - 1) + 2 * n
+
+    # sparsity: each residual block touches its stops' pose and coefficient columns
+    def cols(stop: npt.NDArray) -> FloatArray:
+        pc = 3 * (stop - 1)[:, None] + np.arange(3)
+        pc = np.where(pc >= 0, pc, -1)
+        cc = 3 * (n - 1) + 2 * stop[:, None] + np.arange(2)
+        return np.hstack([pc, cc])
+
+    blocks = [(np.hstack([cols(ei), cols(ej)]), 2), (np.hstack([cols(oi), cols(oi + 1)]), 3)]
+    rows_l, cols_l, r0 = [], [], 0
+    for cb, k in blocks:
+        rr = r0 + np.arange(cb.shape[0] * k).reshape(-1, k)
+        rows_l.append(np.repeat(rr[:, :, None], cb.shape[1], 2).ravel())
+        cols_l.append(np.repeat(cb[:, None, :], k, 1).ravel())
+        r0 += cb.shape[0] * k
+    rows_l.append(r0 + np.arange(2 * n))
+    cols_l.append(3 * (n - 1) + np.arange(2 * n))
+    rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
+    keep = cols_a >= 0
+    sparsity = scipy.sparse.coo_matrix(
+        (np.ones(keep.sum()), (rows_a[keep], cols_a[keep])), shape=(r0 + 2 * n, nv)
+    ).tocsr()
+    x = np.concatenate([p0[1:].ravel(), np.zeros(2 * n)])
+    for _ in range(max(rounds, 1)):
+        sol = least_squares(fun, x, jac_sparsity=sparsity, method="trf", x_scale="jac")
+        x = sol.x
+        p, c = unpack(x)
+        chi2 = np.sum(image_residuals(p, c) ** 2, 1)
+        cw = 1.0 / (1.0 + chi2 / (2.0 * cfg.cauchy_scale**2))
+    p, c = unpack(x)
+    p = p.copy()
+    p[:, 2] = _wrap(p[:, 2])
+    return p, c, cw
+
+
 # --------------------------------------------------------------------------- estimator
 
 
@@ -1004,6 +1359,12 @@ class StopGraphResult:
         Final Cauchy weight of each edge.
     registrations : list of tuple (int, int, Registration)
         Every registration tried (accepted or not), with the stops it joined.
+    turn_coefficients : ndarray, shape (S, 2)
+        Each stop's in-stop heading correction of the joint refinement (rad, over
+        :func:`turn_basis`; zeros without it), already in ``stops``' poses and ``trajectory``.
+    n_registered : int
+        Accepted registrations in the graph. 0: the path is the odometry with the turn
+        closure alone (no stop had reflectors to register, e.g. no turns on the spot).
     """
 
     trajectory: FloatArray
@@ -1012,6 +1373,8 @@ class StopGraphResult:
     edges: list[GraphEdge]
     edge_weights: FloatArray
     registrations: list[tuple[int, int, Registration]] = field(default_factory=list)
+    turn_coefficients: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    n_registered: int = 0
 
 
 class StopGraphPathEstimator:
@@ -1046,7 +1409,10 @@ class StopGraphPathEstimator:
                 min_links=cfg.closure_min_links,
             ),
         )
-        self.registration = ReflectorRegistration(cfg)
+        # the point images' bias, averaged over the horns' +-60 degrees (mean cos^2 0.71)
+        self.point_bias = 0.71 * float(np.mean(np.sum((ant[1:] - ant[0]) ** 2, 1)))
+        self.point_bias *= float(cfg.point_scatterers)
+        self.registration = ReflectorRegistration(cfg, self.point_bias)
 
     def odometry_edge(
         self, log: ScanLog, a: StopScan, b: StopScan
@@ -1088,9 +1454,12 @@ class StopGraphPathEstimator:
         cfg = self.config
         if log.t.size == 0:
             raise ValueError("no acquisitions to estimate a path from")
-        segs = segment_stops(log.odometry, cfg.drive_reset)
+        segs = segment_stops(log.odometry, cfg.drive_reset, cfg.move_step)
         stops = [stop_scan(log, s, e, self.closer, cfg) for s, e in segs]
         n = len(stops)
+        # stops with too few reflectors are never registered (a drive's segments, a robot
+        # that never stops): no call, no record, no loop candidates
+        usable = np.array([len(st.images) >= cfg.min_matched for st in stops])
         graph = StopPoseGraph(n, cfg.cauchy_scale)
         init = np.zeros((n, 3))
         regs: list[tuple[int, int, Registration]] = []
@@ -1098,10 +1467,13 @@ class StopGraphPathEstimator:
         for i in range(n - 1):
             z, cov = self.odometry_edge(log, stops[i], stops[i + 1])
             graph.add(GraphEdge(i=i, j=i + 1, z=z, cov=cov, robust=False))
+            step = z
+            if not (usable[i] and usable[i + 1]):
+                init[i + 1] = compose_poses(init[i : i + 1], step)[0]
+                continue
             reg = self.registration.register_both(stops[i], stops[i + 1], z, cov)
             regs.append((i, i + 1, reg))
             tried.add((i, i + 1))
-            step = z
             if reg.accepted:
                 graph.add(
                     GraphEdge(i=i, j=i + 1, z=reg.pose, cov=reg.cov, robust=True, kind="scan")
@@ -1112,15 +1484,17 @@ class StopGraphPathEstimator:
         loop_cov = np.diag(
             [cfg.loop_window[0] ** 2, cfg.loop_window[0] ** 2, cfg.loop_window[1] ** 2]
         )
-        for _ in range(cfg.loop_rounds):
+        cand = np.flatnonzero(usable)
+        for _ in range(cfg.loop_rounds if cand.size > 2 else 0):
             added = 0
             # the search spans the current estimate's own uncertainty (the graph's marginal
             # of the relative pose), at least ``loop_window``: a fixed narrow window around
             # a stretch the graph holds only by odometry found wrong local matches
             joint = graph.covariance(poses, wt)
-            for i in range(n):
-                d = np.hypot(*(poses[i + 2 :, :2] - poses[i, :2]).T)
-                for j in (np.flatnonzero(d < cfg.loop_distance) + i + 2).tolist():
+            for i in cand.tolist():
+                later = cand[cand >= i + 2]
+                d = np.hypot(*(poses[later, :2] - poses[i, :2]).T)
+                for j in later[d < cfg.loop_distance].tolist():
                     if (i, j) in tried:
                         continue
                     tried.add((i, j))
@@ -1136,6 +1510,21 @@ class StopGraphPathEstimator:
             if added == 0:
                 break
             poses, wt = graph.solve(poses)
+        coef = np.zeros((n, 2))
+        if cfg.refine_turns and n > 1:
+            odo = [
+                self.odometry_edge(log, replace(stops[i], end_sigma=0.0), stops[i + 1])
+                for i in range(n - 1)
+            ]
+            poses, coef, _ = refine_turns(
+                stops, graph.edges, wt, poses, odo, cfg, point_bias=self.point_bias
+            )
+            stops = [
+                replace(
+                    st, poses=st.poses + np.c_[0.0, 0.0, 1.0] * (turn_basis(st.phase) @ c)[:, None]
+                )
+                for st, c in zip(stops, coef, strict=True)
+            ]
         traj = np.zeros((log.t.size, 4))
         traj[:, 0] = log.t
         for st, p in zip(stops, poses, strict=True):
@@ -1148,6 +1537,8 @@ class StopGraphPathEstimator:
             edges=list(graph.edges),
             edge_weights=wt,
             registrations=regs,
+            turn_coefficients=coef,
+            n_registered=sum(1 for e in graph.edges if e.kind != "odometry"),
         )
 
 
@@ -1182,6 +1573,7 @@ __all__: Sequence[str] = (
     "StopPoseGraph",
     "StopScan",
     "predicted_images",
+    "refine_turns",
     "relative_covariance",
     "relative_pose",
     "scan_front_end",
@@ -1189,4 +1581,5 @@ __all__: Sequence[str] = (
     "segment_stops",
     "stop_graph_path",
     "stop_scan",
+    "turn_basis",
 )

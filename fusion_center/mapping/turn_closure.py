@@ -126,12 +126,15 @@ class TurnClosureConfig:
 @dataclass(frozen=True, slots=True)
 class TurnClosure:
     """Result of one stop: ``correction`` (rad, shape (n,), ``e_k``; ``e_0`` = 0), its standard
-    deviation at the last acquisition (rad, inf when the stop was not corrected) and the
-    reflectors that close the loop."""
+    deviation at the last acquisition (rad, inf when the stop was not corrected), the
+    reflectors that close the loop and the RMS over the turn of every acquisition's
+    marginal standard deviation (rad, from the same inverse normal matrix; inf when not
+    corrected)."""
 
     correction: FloatArray
     end_sigma: float
     links: int
+    rms_sigma: float = float("inf")
 
     @property
     def step_sigma(self) -> FloatArray:
@@ -215,12 +218,12 @@ class EchoBearingTurnCloser:
         links = int(np.sum((n_early >= cfg.min_link_pairs) & (n_late >= cfg.min_link_pairs)))
         if links < cfg.min_links:
             return TurnClosure(np.zeros(n), np.inf, links)
-        e, end_sigma = self._solve(n, dyaw, k, world, sig_b, cluster, nc)
+        e, end_sigma, rms_sigma = self._solve(n, dyaw, k, world, sig_b, cluster, nc)
         # the whole turn, not only its end: a wrong link can bend the middle of the turn
         # by degrees and still return near zero at its end
         if not np.all(np.isfinite(e)) or np.max(np.abs(e)) > cfg.max_correction:
             return TurnClosure(np.zeros(n), np.inf, links)
-        return TurnClosure(e, end_sigma, links)
+        return TurnClosure(e, end_sigma, links, rms_sigma)
 
     def _reflectors(self, gid: npt.NDArray, rho: FloatArray, world: FloatArray) -> npt.NDArray:
         """Reflector index of every pair: echo tracks joined by image distance and bearing."""
@@ -258,9 +261,10 @@ class EchoBearingTurnCloser:
         sig_b: FloatArray,
         cluster: npt.NDArray,
         nc: int,
-    ) -> tuple[FloatArray, float]:
+    ) -> tuple[FloatArray, float, float]:
         """Weighted least squares over ``[e_1 .. e_{n-1}, psi_0 .. psi_{nc-1}]``: the
-        corrections and the end's standard deviation, from the inverse of the last round's
+        corrections, the end's standard deviation and the RMS of all the corrections'
+        standard deviations (``e_0`` = 0 included), from the inverse of the last round's
         normal matrix."""
         cfg = self.config
         # unwrap every pair's world bearing next to its reflector's mean
@@ -307,9 +311,10 @@ class EchoBearingTurnCloser:
             else:
                 sig = sig_b
             rw = (sig_b / sig) ** 2 / (1.0 + (res / (cfg.cauchy_scale * sig)) ** 2)
-        cov_end = np.linalg.solve(a, np.eye(m)[:, n - 2])[n - 2]
-        end_sigma = float(np.sqrt(max(cov_end, 0.0)))
-        return np.r_[0.0, x[: n - 1]], end_sigma
+        var = np.diag(np.linalg.inv(a))[: n - 1]
+        end_sigma = float(np.sqrt(max(var[n - 2], 0.0)))
+        rms_sigma = float(np.sqrt(np.sum(np.maximum(var, 0.0)) / n))
+        return np.r_[0.0, x[: n - 1]], end_sigma, rms_sigma
 
 
 def _group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:

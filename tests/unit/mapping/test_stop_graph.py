@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -14,10 +16,13 @@ from fusion_center.mapping.stop_graph import (
     StopPoseGraph,
     StopScan,
     predicted_images,
+    refine_turns,
     relative_pose,
     scan_front_end,
     scan_log_from_pairs,
     segment_stops,
+    stop_scan,
+    turn_basis,
 )
 from fusion_center.mapping.synthetic import echo_pairs, rectangle_room, stop_and_turn_poses
 from sim_nodes.robot_record import odometry_increments
@@ -67,7 +72,7 @@ def test_segment_stops_splits_at_drives(run: tuple[ScanLog, np.ndarray]) -> None
 
 def test_registration_recovers_the_relative_pose(run: tuple[ScanLog, np.ndarray]) -> None:
     """Stop 1 in stop 0's frame from their reflectors, from the odometry's prior, within
-    3 cm and 0.5 degrees (the echoes' 5 mm noise at 1-9 m of image distance); the prior
+    3 cm and 0.7 degrees (the echoes' 5 mm noise at 1-9 m of image distance); the prior
     itself is off by more."""
     log, poses = run
     est = StopGraphPathEstimator(ANTENNAS)
@@ -85,7 +90,9 @@ def test_registration_recovers_the_relative_pose(run: tuple[ScanLog, np.ndarray]
     assert reg.accepted, reg.reason
     err = reg.pose - truth
     assert np.hypot(err[0], err[1]) < 0.03
-    assert abs(np.degrees(err[2])) < 0.5
+    # the stops' own in-stop heading errors (0.3 and 0.7 deg RMS against truth here) bound
+    # the relative heading: 0.49 deg before the point-scatterer bias was modelled, 0.55 after
+    assert abs(np.degrees(err[2])) < 0.7
     assert reg.explained > 0.5
     assert np.all(np.linalg.eigvalsh(reg.cov) > 0)
 
@@ -104,12 +111,23 @@ def test_graph_recovers_the_path(run: tuple[ScanLog, np.ndarray]) -> None:
     rmse, yaw_rmse = np.sqrt(np.mean(pos**2)), np.sqrt(np.mean(yaw**2))
     dr = _dead_reckoning(log.odometry)
     dr_rmse = np.sqrt(np.mean(np.sum((dr[:, :2] - truth[:, :2]) ** 2, 1)))
-    assert rmse < 0.05, (rmse, dr_rmse)
-    assert yaw_rmse < 1.0
+    assert rmse < 0.025, (rmse, dr_rmse)
+    assert yaw_rmse < 0.5
     assert rmse < dr_rmse / 2
     kinds = [e.kind for e in res.edges]
     assert kinds.count("scan") >= 3
     assert kinds.count("loop") >= 1
+    # the registrations carry the result: without them (the turn closure and the odometry
+    # alone) the same run is at least twice as far off
+    alone = StopGraphPathEstimator(
+        ANTENNAS, StopGraphConfig(min_matched=1000, refine_turns=False)
+    ).estimate(log)
+    # and the pose graph alone (before the joint refinement) is within the same bounds
+    graph_only = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(refine_turns=False))
+    pos_g = np.hypot(*(graph_only.estimate(log).trajectory[:, 1:3] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(pos_g**2)) < 0.025
+    pos0 = np.hypot(*(alone.trajectory[:, 1:3] - truth[:, :2]).T)
+    assert rmse < 0.5 * np.sqrt(np.mean(pos0**2)), (rmse, np.sqrt(np.mean(pos0**2)))
 
 
 def _scatterers(points: np.ndarray, pose: np.ndarray) -> StopScan:
@@ -182,11 +200,90 @@ def test_pose_graph_keeps_the_path_against_a_wrong_match() -> None:
         graph.add(GraphEdge(i=i, j=i + 1, z=z, cov=reg_cov, robust=True, kind="scan"))
     wrong = relative_pose(truth[0], truth[3]) + np.array([0.5, 0.0, 0.0])
     graph.add(GraphEdge(i=0, j=3, z=wrong, cov=reg_cov, robust=True, kind="loop"))
-    # the initial estimate chains the consecutive matches, as the estimator does
-    init = truth.copy()
+    # the initial estimate: the chain of the consecutive matches plus noise
+    init = truth + rng.normal(0.0, [0.02, 0.02, np.radians(0.5)], truth.shape)
+    init[0] = truth[0]
     poses, weights = graph.solve(init)
     assert np.max(np.hypot(*(poses[:, :2] - truth[:, :2]).T)) < 0.02
     assert weights[-1] < 0.01
+
+
+def test_pose_graph_across_pi_and_its_covariance() -> None:
+    """Two stops joined by two edges whose headings lie 0.02 rad apart across +-pi: the
+    solve wraps the heading residual (the answer is their mean, not a heading near 0), and
+    the marginal covariance of stop 1 is half the edges' covariance; the relative covariance
+    of the pair is the same."""
+    from fusion_center.mapping.stop_graph import relative_covariance
+
+    z = np.array([1.0, 0.5, np.pi - 0.01])
+    cov = np.array([[4e-4, 1e-4, 0.0], [1e-4, 9e-4, 2e-5], [0.0, 2e-5, 1e-4]])
+    graph = StopPoseGraph(2)
+    graph.add(GraphEdge(i=0, j=1, z=z, cov=cov, robust=False))
+    # the same heading 0.02 rad further, written across the cut
+    graph.add(
+        GraphEdge(i=0, j=1, z=z + np.array([0.0, 0.0, 0.02 - 2 * np.pi]), cov=cov, robust=False)
+    )
+    init = np.array([[0.0, 0.0, 0.0], [1.1, 0.4, -np.pi + 0.05]])
+    poses, _ = graph.solve(init)
+    d = relative_pose(poses[0], poses[1]) - (z + np.array([0.0, 0.0, 0.01]))
+    d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(d, 0.0, atol=1e-6)
+    joint = graph.covariance(poses, np.ones(2))
+    np.testing.assert_allclose(joint, cov / 2, rtol=1e-4, atol=1e-10)
+    rel = relative_covariance(poses, joint, 0, 1)
+    np.testing.assert_allclose(rel, cov / 2, rtol=1e-4, atol=1e-10)
+
+
+def test_inverse_jacobian_and_relative_covariance_against_finite_differences() -> None:
+    """``_inverse_jacobian`` is the derivative of the inverse pose; the relative covariance of
+    two stops is the first-order propagation of their joint covariance."""
+    from fusion_center.mapping.stop_graph import _inverse_jacobian, relative_covariance
+
+    pose = np.array([1.3, -0.7, 2.2])
+    jac = _inverse_jacobian(pose)
+    num = np.empty((3, 3))
+    for k in range(3):
+        dq = np.zeros(3)
+        dq[k] = 1e-6
+        num[:, k] = (
+            relative_pose(pose + dq, np.zeros(3)) - relative_pose(pose, np.zeros(3))
+        ) / 1e-6
+    np.testing.assert_allclose(jac, num, atol=1e-5)
+    rng = np.random.default_rng(1)
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.2, 0.3], [2.0, 1.0, 1.2]])
+    a = rng.normal(size=(6, 6))
+    joint = a @ a.T * 1e-4
+    cov = relative_covariance(poses, joint, 1, 2)
+    # Monte Carlo of the relative pose of stop 2 in stop 1
+    draws = rng.multivariate_normal(np.zeros(6), joint, 40000)
+    rel = np.array(
+        [relative_pose(poses[1] + d[:3], poses[2] + d[3:]) for d in draws]
+    ) - relative_pose(poses[1], poses[2])
+    np.testing.assert_allclose(cov, np.cov(rel.T), rtol=0.05, atol=2e-6)
+
+
+def test_predicted_wall_seen_from_behind_is_nan() -> None:
+    """A wall 1 m ahead of A (image (2, 0)) is seen from behind by a stop 1.5 m ahead: its
+    wall hypothesis is NaN, its point hypothesis is not."""
+    pred = predicted_images(np.array([[2.0, 0.0]]), np.array([1.5, 0.0, 0.0]))[0]
+    assert np.all(np.isnan(pred[0]))
+    assert np.all(np.isfinite(pred[1]))
+
+
+def test_register_both_refuses_an_inconsistent_pair() -> None:
+    """With ``consistency`` tighter than the two directions can agree, a good pair is
+    refused as inconsistent; at the default it is accepted."""
+    rng = np.random.default_rng(4)
+    points = rng.uniform([0.0, 0.0], [6.0, 5.0], (8, 2))
+    pa, pb = np.array([2.0, 2.0, 0.3]), np.array([3.0, 2.4, 0.6])
+    a, b = _scatterers(points, pa), _scatterers(points, pb)
+    b = replace(b, images=b.images + rng.normal(0.0, 0.01, b.images.shape))
+    z = relative_pose(pa, pb)
+    cov = np.diag([0.05**2, 0.05**2, np.radians(2.0) ** 2])
+    assert ReflectorRegistration().register_both(a, b, z, cov).accepted
+    tight = ReflectorRegistration(StopGraphConfig(consistency=(1e-6, 1e-8)))
+    reg = tight.register_both(a, b, z, cov)
+    assert not reg.accepted and reg.reason == "inconsistent"
 
 
 def test_bad_input_gives_one_line_value_errors() -> None:
@@ -220,3 +317,215 @@ def _catch(f: object) -> Exception:
     except ValueError as exc:
         return exc
     raise AssertionError("no ValueError")
+
+
+def test_refine_turns_recovers_the_in_stop_heading_drift() -> None:
+    """Four stops see twelve scatterers, each at its own phase of the turn; every stop's
+    in-stop headings carry a drift ``turn_basis(f) @ c`` (about a degree) that rotates its
+    images and its odometry edge's end heading. The joint refinement over the
+    correspondences recovers each drift within 0.3 degrees (the images' 5 mm noise) and the
+    stop headings within 0.2 degrees, where the uncorrected errors are several times larger."""
+    rng = np.random.default_rng(5)
+    points = rng.uniform([0.5, 0.5], [5.5, 4.5], (12, 2))
+    world = np.array([[1.5, 1.5, 0.2], [3.5, 1.8, 0.5], [4.0, 3.2, 1.4], [2.0, 3.0, 2.8]])
+    c_true = np.radians([[0.0, 0.0], [1.2, -0.6], [-1.0, 0.8], [0.7, 0.5]])
+    turn = np.column_stack([np.zeros((120, 2)), np.linspace(0.0, np.radians(357.0), 120)])
+    stops = []
+    for k, pose in enumerate(world):
+        st = _scatterers(points, pose)
+        phase = rng.uniform(0.0, 1.0, len(points))
+        basis = turn_basis(phase)
+        # the images as the drifting headings put them: rotated by -drift (the correction
+        # +drift restores them), with the echoes' noise
+        ang = -(basis @ c_true[k])
+        c, s = np.cos(ang), np.sin(ang)
+        img = np.column_stack(
+            [c * st.images[:, 0] - s * st.images[:, 1], s * st.images[:, 0] + c * st.images[:, 1]]
+        )
+        img += rng.normal(0.0, 0.005, img.shape)
+        stops.append(
+            replace(
+                st,
+                images=img,
+                poses=turn,
+                end_sigma=np.radians(2.0),
+                closed=False,
+                turn_basis=basis,
+                phase=np.linspace(0.0, 1.0, 120),
+            )
+        )
+    edges, odo = [], []
+    for i in range(len(world)):
+        for j in range(i + 1, len(world)):
+            z = relative_pose(world[i], world[j])
+            cov = np.diag([0.02**2, 0.02**2, np.radians(1.0) ** 2])
+            edges.append(GraphEdge(i=i, j=j, z=z, cov=cov, robust=True, kind="scan"))
+    for i in range(len(world) - 1):
+        z = relative_pose(world[i], world[i + 1])
+        d = -c_true[i, 0]  # the turn's end heading error turns the drive
+        cz, sz = np.cos(d), np.sin(d)
+        z_obs = np.array([cz * z[0] - sz * z[1], sz * z[0] + cz * z[1], z[2] + d])
+        odo.append((z_obs, np.diag([0.05**2, 0.05**2, np.radians(0.3) ** 2])))
+    # the graph's estimate: the true poses off by a degree and a few cm
+    init = np.array([relative_pose(world[0], p) for p in world])
+    init[1:] += rng.normal(0.0, [0.03, 0.03, np.radians(1.0)], (len(world) - 1, 3))
+    truth = np.array([relative_pose(world[0], p) for p in world])
+    # the registrations' correspondences only, then, without registrations, those of every
+    # stop pair within 3 m found at the (erroneous) initial estimate
+    # (fewer correspondences fall within the gate at the estimate: wider tolerances)
+    for dist, reg, tol in ((0.0, edges, (0.3, 0.4, 0.2)), (3.0, [], (0.45, 0.5, 0.35))):
+        cfg = StopGraphConfig(refine_min_matches=4, refine_distance=dist)
+        poses, coef, cw = refine_turns(stops, reg, np.ones(len(reg)), init, odo, cfg)
+        err_c = np.degrees(np.abs(coef - c_true))
+        assert np.all(err_c[:, 0] < tol[0]), (dist, np.degrees(coef))
+        assert np.all(err_c[:, 1] < tol[1]), (dist, np.degrees(coef))
+        yaw = np.degrees(np.abs((poses[:, 2] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi))
+        assert np.all(yaw < tol[2]), (dist, yaw)
+        assert np.all(np.hypot(*(poses[:, :2] - truth[:, :2]).T) < 0.02)
+        assert np.all(cw > 0.5)
+        if dist == 0.0:
+            assert cw.shape == (len(edges) * len(points),)
+
+
+def test_refine_turns_leaves_stops_with_few_correspondences() -> None:
+    """A stop with fewer correspondences than ``refine_min_matches`` keeps its turn (zero
+    coefficients); with none anywhere the poses come back unchanged."""
+    st = _scatterers(np.array([[1.0, 1.0], [2.0, 0.5]]), np.zeros(3))
+    st = replace(st, turn_basis=turn_basis([0.2, 0.7]))
+    b = _scatterers(np.array([[1.0, 1.0], [2.0, 0.5]]), np.array([0.3, 0.0, 0.1]))
+    b = replace(b, turn_basis=turn_basis([0.4, 0.9]))
+    z = np.array([0.3, 0.0, 0.1])
+    edge = GraphEdge(i=0, j=1, z=z, cov=np.eye(3) * 1e-4, robust=True, kind="scan")
+    init = np.array([[0.0, 0.0, 0.0], [0.31, 0.01, 0.1]])
+    odo = [(z, np.eye(3) * 1e-2)]
+    poses, coef, _ = refine_turns([st, b], [edge], np.ones(1), init, odo, StopGraphConfig())
+    np.testing.assert_array_equal(coef, 0.0)
+    np.testing.assert_array_equal(poses, init)
+
+
+def test_a_drive_sampled_in_several_steps_still_separates_the_stops() -> None:
+    """The stop-and-turn run with every drive sampled in four steps (each shorter than
+    ``drive_reset``): the three intermediate acquisitions become segments of their own,
+    the stops keep their 120 acquisitions, get reflectors and registrations, and the path
+    is as good as with one-step drives."""
+    rng = np.random.default_rng(3)
+    turns = stop_and_turn_poses(STOPS, 120, np.radians(3.0))
+    turns[:, 2] += 0.3
+    rows = [turns[:120]]
+    for k in range(1, len(STOPS)):
+        last, nxt = turns[120 * k - 1], turns[120 * k]
+        f = np.array([0.25, 0.5, 0.75])[:, None]
+        drive = np.column_stack([last[:2] + f * (nxt[:2] - last[:2]), np.full(3, last[2])])
+        rows += [drive, turns[120 * k : 120 * (k + 1)]]
+    poses = np.vstack(rows)
+    odo = odometry_increments(poses, rng)
+    room = rectangle_room()
+    pairs = [echo_pairs(room, p, ANTENNAS, rng, sigma=0.005, beam=np.radians(50.0)) for p in poses]
+    log = scan_log_from_pairs(np.arange(len(poses)) * 0.05, odo, pairs)
+    assert np.all(np.hypot(odo[:, 0], odo[:, 1]) < 0.5)  # no single step is the whole drive
+    segs = segment_stops(log.odometry)
+    long = [(a, b) for a, b in segs if b - a > 1]
+    assert [b - a for a, b in long] == [120] * len(STOPS)
+    res = StopGraphPathEstimator(ANTENNAS).estimate(log)
+    assert res.n_registered >= 3
+    truth = _in_first_frame(poses)
+    pos = np.hypot(*(res.trajectory[:, 1:3] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(pos**2)) < 0.025
+
+
+def test_a_robot_that_never_stops_is_cheap_and_flagged() -> None:
+    """400 acquisitions 0.2 m apart round a 2 x 2 m loop (no turn on the spot): no stop
+    gets reflectors, no registration is tried, ``n_registered`` is 0 and the path is the
+    odometry's; in well under a second of work per hundred acquisitions."""
+    import time
+
+    rng = np.random.default_rng(0)
+    s = np.arange(400) * 0.2 % 8.0
+    side = (s // 2.0).astype(int)
+    u = s % 2.0
+    corners = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    dirs = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    xy = corners[side] + u[:, None] * dirs[side] + 1.5
+    poses = np.column_stack([xy, np.arctan2(dirs[side, 1], dirs[side, 0])])
+    odo = odometry_increments(poses, rng)
+    room = rectangle_room()
+    pairs = [echo_pairs(room, p, ANTENNAS, rng, sigma=0.005) for p in poses]
+    log = scan_log_from_pairs(np.arange(len(poses)) * 0.05, odo, pairs)
+    c0 = time.process_time()
+    res = StopGraphPathEstimator(ANTENNAS).estimate(log)
+    assert time.process_time() - c0 < 4.0
+    assert res.registrations == [] and res.n_registered == 0
+    dr = _dead_reckoning(log.odometry)
+    np.testing.assert_allclose(res.trajectory[:, 1:3], dr[:, :2], atol=1e-6)
+    dyaw = (res.trajectory[:, 3] - dr[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(dyaw, 0.0, atol=1e-6)
+
+
+def test_heading_rms_of_closed_stops_matches_their_in_stop_heading_error(
+    run: tuple[ScanLog, np.ndarray],
+) -> None:
+    """Review M1: over the closed stops of the synthetic run, the claimed in-stop heading
+    noise (:attr:`StopScan.heading_rms`, the closure's own marginal) is within a factor of
+    1.5 of the RMS in-stop heading error against truth (``end_sigma / sqrt(6)`` was 3 times
+    too small)."""
+    log, poses = run
+    est = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(closure_marginal=True))
+    err, claimed = [], []
+    for s, e in segment_stops(log.odometry):
+        st = stop_scan(log, s, e, est.closer, est.config)
+        assert st.closed
+        err.append(st.poses[:, 2] - (poses[s:e, 2] - poses[s, 2]))
+        claimed.append(st.heading_rms)
+    actual = np.sqrt(np.mean(np.concatenate(err) ** 2))
+    rms = np.sqrt(np.mean(np.square(claimed)))
+    assert actual / 1.5 < rms < actual * 1.5, (np.degrees(actual), np.degrees(rms))
+
+
+def test_registration_covariance_does_not_shrink_with_the_pair_count() -> None:
+    """Review M2: a reflector's model mismatch and heading noise are common to its pairs, so
+    a hundred times more pairs behind the same reflectors (same 5 mm scatter) must not make
+    the registration a hundred or ten times more certain."""
+    rng = np.random.default_rng(4)
+    points = rng.uniform([0.0, 0.0], [6.0, 5.0], (8, 2))
+    pa, pb = np.array([2.0, 2.0, 0.3]), np.array([3.0, 2.4, 0.6])
+    a, b = _scatterers(points, pa), _scatterers(points, pb)
+    b = replace(b, images=b.images + rng.normal(0.0, 0.01, b.images.shape))
+    z = relative_pose(pa, pb)
+    cov = np.diag([0.05**2, 0.05**2, np.radians(2.0) ** 2])
+    cfg = StopGraphConfig(edge_sigma_floor=(1e-6, 1e-8), pair_count_weight=False)
+    reg = ReflectorRegistration(cfg)
+    few = reg.register(a, b, z, cov)
+    many = reg.register(
+        replace(a, weights=a.weights * 100), replace(b, weights=b.weights * 100), z, cov
+    )
+    assert few.accepted and many.accepted
+    ratio = np.trace(few.cov[:2, :2]) / np.trace(many.cov[:2, :2])
+    assert ratio < 1.5, ratio
+
+
+def test_point_bias_predicts_a_point_scatterers_image() -> None:
+    """Review M4: a point scatterer's image from the exact ellipse ranges
+    (:func:`~fusion_center.mapping.models.invert_image`) at two stops, each facing it on
+    its array's axis: with ``point_bias = |rx|^2`` the predicted image is within 3 mm of
+    B's; without it off by more than 1 cm."""
+    from fusion_center.mapping.models import invert_image
+
+    rx = ANTENNAS[1:] - ANTENNAS[0]
+    p = np.array([4.0, 1.0])
+
+    def image(pose: np.ndarray) -> np.ndarray:
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        rot = np.array([[c, -s], [s, c]])
+        rng_ = [np.linalg.norm(p - pose[:2]) + np.linalg.norm(p - pose[:2] - rot @ r) for r in rx]
+        return rot @ invert_image(np.array([rng_]), rx)[0]  # stop frame = pose's axes
+
+    pa = np.array([2.5, 1.0, 0.0])
+    pb = np.array([1.0, 1.0 + 3.0 * np.tan(0.0), 0.0])
+    ia, ib = image(pa), image(pb)
+    z = relative_pose(pa, pb)
+    kappa = float(np.mean(np.sum(rx**2, 1)))
+    exact = predicted_images(ia[None], z, kappa)[0]
+    plain = predicted_images(ia[None], z)[0]
+    assert exact.shape == (3, 2) and plain.shape == (2, 2)
+    assert np.linalg.norm(exact[2] - ib) < 0.003, exact[2] - ib
+    assert np.linalg.norm(plain[1] - ib) > 0.01, plain[1] - ib

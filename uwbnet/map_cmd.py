@@ -127,9 +127,14 @@ def _robot_ir(
 ) -> Iterator[tuple[NodeInfo, Ir]]:
     """The mapped robot's valid ``ir`` messages with its ``node_info``; collects its
     ``truth`` and the dead-reckoning path (the odometry integrated alone, first-pose frame)
-    on the way and counts rejected ones in ``stats``."""
+    on the way and counts rejected ones in ``stats``.
+
+    ``ir.odom`` is the motion since the previous ``ir``: the odometry of a rejected ``ir`` is
+    carried into the next one's (composed), so that a bad impulse response does not lose the
+    robot's motion (one lost step during a drive merged two stops of the stop graph)."""
     infos: dict[str, NodeInfo] = {}
     dr_pose = np.zeros(3)
+    carry: np.ndarray | None = None
     for msg in decoded_messages(path, ("node_info", "ir", "truth"), stats, progress):
         if isinstance(msg, NodeInfo):
             infos[msg.src] = msg
@@ -146,7 +151,14 @@ def _robot_ir(
             if msg.h.shape[0] != 2 or not np.all(np.isfinite(msg.h)):
                 stats.rejected += 1
                 log.warning("ir of %s rejected: needs two finite rows", msg.src)
+                if msg.odom is not None:
+                    step = np.asarray(msg.odom, float)
+                    carry = step if carry is None else compose(carry, step)
                 continue
+            if carry is not None and msg.odom is not None:
+                odom = compose(carry, np.asarray(msg.odom, float))
+                msg = dataclasses.replace(msg, odom=tuple(float(v) for v in odom))
+            carry = None
             stats.ir += 1
             if msg.odom is not None and dead:
                 dr_pose = compose(dr_pose, np.asarray(msg.odom, float))
@@ -170,7 +182,11 @@ def _map_by_stops(
     """Map and ``[t, x, y, yaw]`` path by the stop graph and the map along its path.
 
     Raises :class:`_NotStopsError` when the recording does not suit it (an ``ir`` without
-    odometry; with ``auto`` also fewer than :data:`AUTO_MIN_CLOSED` of the stops closed)."""
+    odometry), and with ``auto`` also when fewer than :data:`AUTO_MIN_CLOSED` of the stops
+    (runs of at least ``StopGraphConfig.min_stop_acquisitions``: a drive sampled in
+    several steps makes short runs that are no stops) closed, when no registration joined
+    two stops (the path would be the odometry's) or when the stop graph or the map along it
+    fails (``ValueError``); ``stops`` gives that failure as a :class:`MappingError`."""
     from fusion_center.mapping.fixed_path import FixedPathConfig, map_fixed_path
     from fusion_center.mapping.stop_graph import StopGraphPathEstimator, scan_front_end
 
@@ -196,22 +212,33 @@ def _map_by_stops(
         raise MappingError(f"{path}: {exc}") from None
     if missing:
         raise _NotStopsError(f"the ir at t = {missing[0]} s has no odometry")
+    estimator = StopGraphPathEstimator(antennas)
     try:
-        res = StopGraphPathEstimator(antennas).estimate(scans)
+        res = estimator.estimate(scans)
     except ValueError as exc:
+        if auto:
+            raise _NotStopsError(f"stop graph failed: {exc}") from None
         raise MappingError(f"{path}: {exc}") from None
-    stats.stops = len(res.stops)
-    stats.stops_closed = sum(s.closed for s in res.stops)
-    stats.registrations = sum(e.kind != "odometry" for e in res.edges)
-    if auto and stats.stops_closed < AUTO_MIN_CLOSED * stats.stops:
+    turns = [s for s in res.stops if s.end - s.start >= estimator.config.min_stop_acquisitions]
+    stats.stops = len(turns)
+    stats.stops_closed = sum(s.closed for s in turns)
+    stats.registrations = res.n_registered
+    if auto and stats.stops_closed < AUTO_MIN_CLOSED * max(stats.stops, 1):
         raise _NotStopsError(f"{stats.stops_closed} of {stats.stops} stops closed")
-    built = map_fixed_path(
-        scans.pairs,
-        scans.groups,
-        res.trajectory[:, 1:],
-        antennas,
-        FixedPathConfig(**STOP_MAP_SETTINGS),
-    )
+    if auto and res.n_registered == 0:
+        raise _NotStopsError("no registration joined two stops")
+    try:
+        built = map_fixed_path(
+            scans.pairs,
+            scans.groups,
+            res.trajectory[:, 1:],
+            antennas,
+            FixedPathConfig(**STOP_MAP_SETTINGS),
+        )
+    except ValueError as exc:
+        if auto:
+            raise _NotStopsError(f"map along the stop graph failed: {exc}") from None
+        raise MappingError(f"{path}: {exc}") from None
     stats.pairs_seen = sum(int(p.shape[0]) for p in scans.pairs)
     stats.pairs_used = int(built.pairs.sum())
     return built.map, res.trajectory
@@ -251,7 +278,7 @@ def map_recording(
         raise MappingError(f"--particles must be at least 1, got {particles}")
     if localise not in LOCALISERS:
         raise MappingError(f"unknown --localise {localise!r} ({', '.join(LOCALISERS)})")
-    t_start = time.perf_counter()
+    t_start = t_filter = time.perf_counter()
     filter_map = filter_traj = None
     stats = MapStats()
     truth: list[tuple[float, tuple[float, ...]]] = []
@@ -270,7 +297,7 @@ def map_recording(
         except _NotStopsError as why:
             if localise == "stops":
                 raise MappingError(f"{path}: no stop graph: {why}") from None
-            log.info("%s: the particle filter maps it (no stop graph: %s)", path, why)
+            log.warning("%s: the particle filter maps it (no stop graph: %s)", path, why)
             # a fresh count for the filter's pass; what the stop graph found stays reported
             stats = MapStats(
                 stops=stats.stops,
@@ -278,6 +305,9 @@ def map_recording(
                 registrations=stats.registrations,
             )
             truth, dead = [], []
+            # the file was read once already: the progress bar is not advanced again
+            progress = None
+            t_filter = time.perf_counter()
     if the_map is None:
         stats.localise = "filter"
         mapper = None
@@ -298,7 +328,7 @@ def map_recording(
         the_map = filter_map = mapper.map()
         filter_traj = traj
         # the filter's own rate (what the live service must sustain); smoothing runs once after
-        filter_s = time.perf_counter() - t_start
+        filter_s = time.perf_counter() - t_filter
         stats.acquisitions_per_s = round(stats.ir / max(filter_s, 1e-9), 1)
         if smooth:
             c0 = time.process_time()
@@ -325,10 +355,13 @@ def map_recording(
         "robot": stats.robot,
         "frame": "first pose of the robot",
         "localise": stats.localise,
-        "association": method,
-        "particles": particles,
-        "seed": seed,
     }
+    if stats.localise == "filter":
+        doc.update(association=method, particles=particles, seed=seed)
+    else:
+        doc.update(
+            stops=stats.stops, stops_closed=stats.stops_closed, registrations=stats.registrations
+        )
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)
     if png is not None:

@@ -6,6 +6,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from protocol import Ir, decode
@@ -104,6 +105,8 @@ def test_map_localises_a_turning_robot_by_its_stop_graph(
     assert ev["trajectory"]["rmse_m"] < 0.5 * ev["dead_reckoning"]["rmse_m"]
     assert ev["walls"]["faces_found"] >= 3 and ev["walls"]["position_m"]["median"] < 0.1
     assert stats["eval_filter"] is None
+    # the filter's settings played no part; the stop graph's counts are recorded instead
+    assert "particles" not in doc and doc["stops"] == 6 and doc["registrations"] >= 1
     again = tmp_path / "again.json"
     proc = uwbnet("map", str(turning_recording), "--out", str(again), "--localise", "stops")
     assert proc.returncode == 0, proc.stderr
@@ -114,14 +117,50 @@ def test_map_localises_a_turning_robot_by_its_stop_graph(
     assert last_json(proc)["localise"] == "filter"
 
 
-def test_map_stop_graph_without_odometry(turning_recording: Path, tmp_path: Path) -> None:
-    bare = tmp_path / "bare.mcap"
-    with RecordingWriter(bare) as w:
-        for rec in read_recording(turning_recording):
+def _rewrite(src: Path, dst: Path, change) -> None:
+    """Copy a recording, passing every ``ir`` through ``change(index, ir)``."""
+    k = 0
+    with RecordingWriter(dst) as w:
+        for rec in read_recording(src):
             msg = decode(rec.payload)
             if isinstance(msg, Ir):
-                msg = dataclasses.replace(msg, odom=None)
+                msg, k = change(k, msg), k + 1
             w.write_message(rec.topic, msg)
+
+
+def test_a_rejected_ir_keeps_its_odometry(turning_recording: Path, tmp_path: Path) -> None:
+    # ir.odom is the motion since the previous ir: a rejected ir's drive must reach the next
+    # one, or the stop graph merges two stops and the path is lost
+    drives: list[int] = []
+
+    def spoil(k: int, ir: Ir) -> Ir:
+        if ir.odom is not None and abs(ir.odom[0]) + abs(ir.odom[1]) > 0.1 and not drives:
+            drives.append(k)
+            # a third receiver row: a valid message the mapper cannot use (a NaN sample
+            # fails decoding already, and with it its odometry)
+            h = np.vstack([ir.h, ir.h[:1]])
+            return dataclasses.replace(ir, h=h, rx=(*ir.rx, ir.rx[0]))
+        return ir
+
+    bad = tmp_path / "bad.mcap"
+    _rewrite(turning_recording, bad, spoil)
+    assert drives, "the recording has no drive"
+    runs = {}
+    for name, rec in (("clean", turning_recording), ("bad", bad)):
+        out = tmp_path / f"{name}.json"
+        proc = uwbnet("map", str(rec), "--out", str(out), "--localise", "stops",
+                      "--eval", "room_pillar")  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        runs[name] = last_json(proc)
+    assert runs["bad"]["rejected"] == 1 and runs["bad"]["ir"] == runs["clean"]["ir"] - 1
+    assert runs["bad"]["stops"] == runs["clean"]["stops"] == 6
+    clean, bad_rmse = (runs[n]["eval"]["trajectory"]["rmse_m"] for n in ("clean", "bad"))
+    assert bad_rmse < clean + 0.05, (clean, bad_rmse)
+
+
+def test_map_stop_graph_without_odometry(turning_recording: Path, tmp_path: Path) -> None:
+    bare = tmp_path / "bare.mcap"
+    _rewrite(turning_recording, bare, lambda k, ir: dataclasses.replace(ir, odom=None))
     out = tmp_path / "m.json"
     proc = uwbnet("map", str(bare), "--out", str(out), "--localise", "stops")
     assert_one_line_error(proc, "has no odometry")

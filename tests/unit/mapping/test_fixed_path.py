@@ -26,7 +26,13 @@ def _echoes(seed: int = 1):
     """The room's echo pairs at every pose of a stop-and-turn path, grouped as the mapper
     groups them (Kalman tracks, reset at every drive)."""
     room = rectangle_room()
-    poses = stop_and_turn_poses(STOPS, TURN, np.radians(6.0))
+    return (room, *_stop_echoes(room, STOPS, seed))
+
+
+def _stop_echoes(room, stops, seed: int):
+    """Poses of a stop-and-turn path through ``stops`` (TURN acquisitions, 6-degree steps),
+    the room's echo pairs there and their Kalman track ids (reset at every drive)."""
+    poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
     rng = np.random.default_rng(seed)
     pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
     grouper = KalmanEchoGrouper()
@@ -35,7 +41,7 @@ def _echoes(seed: int = 1):
         if i % TURN == 0:
             grouper.reset()
         ids.append(grouper.step(z))
-    return room, poses, pairs, ids
+    return poses, pairs, ids
 
 
 def _wrap_angle(a: np.ndarray) -> np.ndarray:
@@ -170,15 +176,7 @@ def _single(corner=None, point=None, wall=None):
 
 
 def _map_from_stops(room, stops, seed: int, config: FixedPathConfig | None = None):
-    poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
-    rng = np.random.default_rng(seed)
-    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
-    grouper = KalmanEchoGrouper()
-    ids = []
-    for i, z in enumerate(pairs):
-        if i % TURN == 0:
-            grouper.reset()
-        ids.append(grouper.step(z))
+    poses, pairs, ids = _stop_echoes(room, stops, seed)
     return map_fixed_path(pairs, ids, poses, ANTENNAS, config)
 
 

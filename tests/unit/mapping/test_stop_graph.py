@@ -270,16 +270,22 @@ def test_predicted_wall_seen_from_behind_is_nan() -> None:
     assert np.all(np.isfinite(pred[1]))
 
 
-def test_register_both_refuses_an_inconsistent_pair() -> None:
-    """With ``consistency`` tighter than the two directions can agree, a good pair is
-    refused as inconsistent; at the default it is accepted."""
+def _two_scatter_stops():
+    """Two stops seeing the same 8 point scatterers (1 cm of image noise on the second), the
+    true relative pose and a prior covariance of 5 cm / 2 deg."""
     rng = np.random.default_rng(4)
     points = rng.uniform([0.0, 0.0], [6.0, 5.0], (8, 2))
     pa, pb = np.array([2.0, 2.0, 0.3]), np.array([3.0, 2.4, 0.6])
     a, b = _scatterers(points, pa), _scatterers(points, pb)
     b = replace(b, images=b.images + rng.normal(0.0, 0.01, b.images.shape))
-    z = relative_pose(pa, pb)
     cov = np.diag([0.05**2, 0.05**2, np.radians(2.0) ** 2])
+    return a, b, relative_pose(pa, pb), cov
+
+
+def test_register_both_refuses_an_inconsistent_pair() -> None:
+    """With ``consistency`` tighter than the two directions can agree, a good pair is
+    refused as inconsistent; at the default it is accepted."""
+    a, b, z, cov = _two_scatter_stops()
     assert ReflectorRegistration().register_both(a, b, z, cov).accepted
     tight = ReflectorRegistration(StopGraphConfig(consistency=(1e-6, 1e-8)))
     reg = tight.register_both(a, b, z, cov)
@@ -485,13 +491,7 @@ def test_registration_covariance_does_not_shrink_with_the_pair_count() -> None:
     """Review M2: a reflector's model mismatch and heading noise are common to its pairs, so
     a hundred times more pairs behind the same reflectors (same 5 mm scatter) must not make
     the registration a hundred or ten times more certain."""
-    rng = np.random.default_rng(4)
-    points = rng.uniform([0.0, 0.0], [6.0, 5.0], (8, 2))
-    pa, pb = np.array([2.0, 2.0, 0.3]), np.array([3.0, 2.4, 0.6])
-    a, b = _scatterers(points, pa), _scatterers(points, pb)
-    b = replace(b, images=b.images + rng.normal(0.0, 0.01, b.images.shape))
-    z = relative_pose(pa, pb)
-    cov = np.diag([0.05**2, 0.05**2, np.radians(2.0) ** 2])
+    a, b, z, cov = _two_scatter_stops()
     cfg = StopGraphConfig(edge_sigma_floor=(1e-6, 1e-8), pair_count_weight=False)
     reg = ReflectorRegistration(cfg)
     few = reg.register(a, b, z, cov)

@@ -59,7 +59,11 @@ from fusion_center.mapping.echoes import EnvelopePeakEchoExtractor, pair_echoes
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import invert_image
 from fusion_center.mapping.relocalise import compose_poses
-from fusion_center.mapping.turn_closure import EchoBearingTurnCloser, TurnClosureConfig
+from fusion_center.mapping.turn_closure import (
+    EchoBearingTurnCloser,
+    TurnClosureConfig,
+    group_median,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -477,19 +481,6 @@ class StopGraphConfig:
             )
 
 
-def _group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:
-    """Median of ``x`` per group index 0 .. n-1 (0 for an empty group)."""
-    order = np.lexsort((x, group))
-    xs, gs = x[order], group[order]
-    start = np.searchsorted(gs, np.arange(n))
-    cnt = np.bincount(gs, minlength=n)
-    lo = np.minimum(start + np.maximum(cnt - 1, 0) // 2, max(xs.size - 1, 0))
-    hi = np.minimum(start + cnt // 2, max(xs.size - 1, 0))
-    if xs.size == 0:
-        return np.zeros(n)
-    return np.where(cnt > 0, 0.5 * (xs[lo] + xs[hi]), 0.0)
-
-
 def stop_scan(
     log: ScanLog,
     start: int,
@@ -570,9 +561,9 @@ def stop_scan(
     label = closer._reflectors(gid, rho, world)  # the closure's own joining of echo tracks
     nr = int(label.max()) + 1
     cnt = np.bincount(label, minlength=nr).astype(float)
-    med = np.column_stack([_group_median(img[:, j], label, nr) for j in range(2)])
+    med = np.column_stack([group_median(img[:, j], label, nr) for j in range(2)])
     dev = np.linalg.norm(img - med[label], axis=1)
-    scatter = 1.4826 * _group_median(dev, label, nr) / np.sqrt(2.0)
+    scatter = 1.4826 * group_median(dev, label, nr) / np.sqrt(2.0)
     limit = cfg.max_reflector_scatter + cfg.scatter_per_metre * np.hypot(med[:, 0], med[:, 1])
     keep = (cnt >= cfg.min_reflector_pairs) & (scatter <= limit)
     basis = turn_basis(frac[k])

@@ -307,7 +307,7 @@ class EchoBearingTurnCloser:
             if cfg.cluster_noise:
                 # each reflector's own bearing scatter (far images from higher-order paths
                 # scatter by degrees, a near wall's by a tenth): a robust std per reflector
-                sig = np.maximum(sig_b, 1.4826 * _group_median(np.abs(res), cluster, nc)[cluster])
+                sig = np.maximum(sig_b, 1.4826 * group_median(np.abs(res), cluster, nc)[cluster])
             else:
                 sig = sig_b
             rw = (sig_b / sig) ** 2 / (1.0 + (res / (cfg.cauchy_scale * sig)) ** 2)
@@ -317,13 +317,14 @@ class EchoBearingTurnCloser:
         return np.r_[0.0, x[: n - 1]], end_sigma, rms_sigma
 
 
-def _group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:
-    """Median of ``x`` per group index (0 .. n-1; 0 for an empty group)."""
+def group_median(x: FloatArray, group: npt.NDArray, n: int) -> FloatArray:
+    """Median of ``x`` per group index 0 .. n-1 (0 for an empty group)."""
     order = np.lexsort((x, group))
     xs, gs = x[order], group[order]
     start = np.searchsorted(gs, np.arange(n))
     cnt = np.bincount(gs, minlength=n)
-    lo = start + np.maximum(cnt - 1, 0) // 2
-    hi = start + cnt // 2
-    lo, hi = np.minimum(lo, xs.size - 1), np.minimum(hi, xs.size - 1)
+    lo = np.minimum(start + np.maximum(cnt - 1, 0) // 2, max(xs.size - 1, 0))
+    hi = np.minimum(start + cnt // 2, max(xs.size - 1, 0))
+    if xs.size == 0:
+        return np.zeros(n)
     return np.where(cnt > 0, 0.5 * (xs[lo] + xs[hi]), 0.0)

@@ -23,7 +23,6 @@ Two ways to the path (``localise``):
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import logging
 import math
@@ -200,7 +199,8 @@ def _map_by_stops(
     missing: list[float] = []
 
     def frames() -> Iterator[tuple[float, np.ndarray, Any]]:
-        for _, m in itertools.chain([first], msgs):
+        yield msg0.t, msg0.h, (0.0, 0.0, 0.0)  # the first ir has no motion before it
+        for _, m in msgs:
             if m.odom is None:
                 missing.append(m.t)
                 return

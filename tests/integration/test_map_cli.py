@@ -169,3 +169,13 @@ def test_map_stop_graph_without_odometry(turning_recording: Path, tmp_path: Path
     proc = uwbnet("map", str(bare), "--out", str(out), "--particles", "5", "--no-smooth")
     assert proc.returncode == 0, proc.stderr
     assert last_json(proc)["localise"] == "filter" and out.exists()
+    # the first ir has no motion before it: a robot may leave its odom out
+    first = tmp_path / "first.mcap"
+
+    def drop_first(k: int, ir: Ir) -> Ir:
+        return ir if k else dataclasses.replace(ir, odom=None)
+
+    _rewrite(turning_recording, first, drop_first)
+    proc = uwbnet("map", str(first), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert last_json(proc)["localise"] == "stops"

@@ -808,9 +808,10 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument(
         "--association",
         dest="method",
-        choices=("measurement", "state"),
-        default="measurement",
-        help="data association (6.3): echo groups (measurement space) or per pair (state space)",
+        choices=("auto", "measurement", "state"),
+        default="auto",
+        help="the filter's data association (6.3): echo groups (measurement space), per pair "
+        "(state space), or auto: state when the robot turns in steps of 10 degrees or more",
     )
     mp.add_argument(
         "--localise",

@@ -64,6 +64,20 @@ def test_map_writes_walls_corners_points_and_trajectory(
     assert len(json.loads(out.read_text())["trajectory"]) == 120
 
 
+def test_map_association_follows_the_turning_step(robot_recording: Path, tmp_path: Path) -> None:
+    # 15-degree turning steps break the measurement space's echo tracks: auto takes the state
+    # space (the 3-degree case is in the stop-graph test below)
+    out = tmp_path / "m.json"
+    proc = uwbnet("map", str(robot_recording), "--out", str(out), "--particles", "5", "--no-smooth")
+    assert proc.returncode == 0, proc.stderr
+    assert last_json(proc)["association"] == "state"
+    assert json.loads(out.read_text())["association"] == "state"
+    proc = uwbnet("map", str(robot_recording), "--out", str(out), "--particles", "5",
+                  "--no-smooth", "--association", "measurement")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert last_json(proc)["association"] == "measurement"
+
+
 def test_map_errors_are_one_line(robot_recording: Path, tmp_path: Path) -> None:
     out = tmp_path / "m.json"
     proc = uwbnet("map", str(tmp_path / "missing.mcap"), "--out", str(out))
@@ -114,7 +128,9 @@ def test_map_localises_a_turning_robot_by_its_stop_graph(
     proc = uwbnet("map", str(turning_recording), "--out", str(again), "--localise", "filter",
                   "--particles", "10", "--no-smooth")  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert last_json(proc)["localise"] == "filter"
+    plain = last_json(proc)
+    # 3-degree turning steps: the filter's automatic association is the measurement space
+    assert plain["localise"] == "filter" and plain["association"] == "measurement"
 
 
 def _rewrite(src: Path, dst: Path, change) -> None:

@@ -34,6 +34,10 @@ pytestmark = [pytest.mark.integration, pytest.mark.multihost, pytest.mark.faults
 NET = "mhost"
 MAKE_CERTS = Path(__file__).parents[2] / "deploy" / "make-certs.sh"
 CUT = 5.0
+#: Seconds after the restart that the recovered tracks are scored over. 5 s gave a correct
+#: count of 0.78-1.0 between runs of the same code (4 runs; one CI run failed the 0.8 bound
+#: at 0.776); 10 s gave 0.99-1.0 in 4 runs.
+SCORED = 10.0
 
 
 def _run(*cmd: str) -> subprocess.CompletedProcess[str]:
@@ -202,7 +206,8 @@ def test_three_hosts_with_tls_survive_a_link_cut_and_a_killed_node_process(hosts
     restarted_at = time.time()
     sim_b = start("hostB", "simB2", "simnode", "--config", str(cfg["hostB"]))
     readmitted = _wait_log(procs, "fusion", "node bat4 joined", 30.0, after=restarted_at)
-    threading.Event().wait(6.0)  # the restarted nodes deliver and tracks settle
+    # the restarted nodes deliver and tracks settle (1 s), then SCORED seconds are scored
+    threading.Event().wait(1.0 + SCORED)
     end_at = time.time()
 
     for p in (sim_a, sim_b, rec, fusion):
@@ -231,7 +236,7 @@ def test_three_hosts_with_tls_survive_a_link_cut_and_a_killed_node_process(hosts
 
     # Tracks recover: the last seconds, after the restart, score like a healthy network.
     result = evaluate_files(
-        rec_path, tmp_path / "live.jsonl", skip=end_at - 5.0 - _first_truth(rec_path)
+        rec_path, tmp_path / "live.jsonl", skip=end_at - SCORED - _first_truth(rec_path)
     )
     figures = {
         "cut_noticed_s": round(cut_noticed - cut_at, 3),

@@ -58,6 +58,7 @@ from scipy.optimize import least_squares
 from fusion_center.mapping.echoes import EnvelopePeakEchoExtractor, pair_echoes
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import invert_image
+from fusion_center.mapping.pipeline import MapperConfig
 from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.turn_closure import (
     EchoBearingTurnCloser,
@@ -123,32 +124,29 @@ def scan_front_end(
     fs: float,
     t0: float,
     bandwidth: float,
-    min_range: float = 1.2,
-    max_range: float = 10.0,
-    threshold: float = 8.0,
-    dynamic_db: float = 6.0,
-    max_echoes: int = 4,
-    pair_gate: float = 0.6,
-    warmup: int = 24,
-    drive_reset: float = 0.1,
+    config: MapperConfig | None = None,
 ) -> ScanLog:
     """Echo pairs and echo-track ids of every acquisition, as EchoSlamMapper makes them.
 
-    The defaults are :class:`~fusion_center.mapping.pipeline.MapperConfig`'s. ``frames``
+    ``config`` holds the front end's settings (echo search, pairing, warm-up, drive reset),
+    the mapper's own :class:`~fusion_center.mapping.pipeline.MapperConfig`. ``frames``
     yields ``(t, h, odometry)``: time (s), impulse responses (2, n) at rx1 and rx2, and
     ``(dx, dy, dyaw)`` since the previous acquisition (required: the path is built on it).
     """
+    cfg = config or MapperConfig()
     ext = EnvelopePeakEchoExtractor(
         fs=fs,
         t0=t0,
         bandwidth=bandwidth,
-        min_range=min_range,
-        max_range=max_range,
-        threshold=threshold,
-        dynamic_db=dynamic_db,
-        max_echoes=max_echoes,
-        warmup=warmup,
+        min_range=cfg.min_range,
+        max_range=cfg.max_range,
+        threshold=cfg.threshold,
+        dynamic_db=cfg.dynamic_db,
+        max_echoes=cfg.max_echoes,
+        alpha=cfg.background_alpha,
+        warmup=cfg.warmup,
     )
+    pair_gate = cfg.pair_gate
     ts: list[float] = []
     odos: list[FloatArray] = []
     pairs: list[FloatArray] = []
@@ -162,7 +160,7 @@ def scan_front_end(
         odos.append(o if ts[1:] else np.zeros(3))
         pairs += [pair_echoes(e, pair_gate) for e in ext.push(np.asarray(h))]
     pairs += [pair_echoes(e, pair_gate) for e in ext.flush()]
-    return scan_log_from_pairs(ts, np.array(odos).reshape(-1, 3), pairs, drive_reset)
+    return scan_log_from_pairs(ts, np.array(odos).reshape(-1, 3), pairs, cfg.drive_reset)
 
 
 def scan_log_from_pairs(
@@ -571,21 +569,7 @@ def stop_scan(
     med, cnt, scatter, gb = _merge_reflectors(
         med[keep], cnt[keep], scatter[keep], cfg.merge_distance, gb[keep]
     )
-    return StopScan(
-        start=start,
-        end=end,
-        poses=poses,
-        end_sigma=end_sigma,
-        closed=closed,
-        on_the_spot=on_spot,
-        images=med,
-        weights=cnt,
-        image_sigma=scatter,
-        turn_basis=gb,
-        phase=frac,
-        odometry_sigma=odo_sigma,
-        closure_rms=closure_rms,
-    )
+    return replace(empty, images=med, weights=cnt, image_sigma=scatter, turn_basis=gb)
 
 
 def turn_basis(phase: npt.ArrayLike) -> FloatArray:

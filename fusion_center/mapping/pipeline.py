@@ -163,6 +163,25 @@ class MapperConfig:
             )
 
 
+def echo_extractor(
+    config: MapperConfig, *, fs: float, t0: float, bandwidth: float
+) -> EnvelopePeakEchoExtractor:
+    """The mapper's echo extractor for impulse responses sampled at ``fs`` (Hz) from ``t0``
+    (s) over ``bandwidth`` (Hz), with ``config``'s echo search and background settings."""
+    return EnvelopePeakEchoExtractor(
+        fs=fs,
+        t0=t0,
+        bandwidth=bandwidth,
+        min_range=config.min_range,
+        max_range=config.max_range,
+        threshold=config.threshold,
+        dynamic_db=config.dynamic_db,
+        max_echoes=config.max_echoes,
+        alpha=config.background_alpha,
+        warmup=config.warmup,
+    )
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MapperOutput:
     """The filter's state after one acquisition: time ``t`` (s) and the pose estimate in the
@@ -202,18 +221,7 @@ class EchoSlamMapper:
         self.config = cfg = config or MapperConfig()
         self.filter = RbpfSlam(antennas, slam)
         self.measurement_space = self.filter.config.association == "measurement"
-        self.extractor = EnvelopePeakEchoExtractor(
-            fs=fs,
-            t0=t0,
-            bandwidth=bandwidth,
-            min_range=cfg.min_range,
-            max_range=cfg.max_range,
-            threshold=cfg.threshold,
-            dynamic_db=cfg.dynamic_db,
-            max_echoes=cfg.max_echoes,
-            alpha=cfg.background_alpha,
-            warmup=cfg.warmup,
-        )
+        self.extractor = echo_extractor(cfg, fs=fs, t0=t0, bandwidth=bandwidth)
         self.grouper = KalmanEchoGrouper()
         # acquisitions waiting for the extractor's warm-up: (t, odometry)
         self._meta: deque[tuple[float, FloatArray | None]] = deque()

@@ -55,10 +55,10 @@ import numpy.typing as npt
 import scipy.sparse
 from scipy.optimize import least_squares
 
-from fusion_center.mapping.echoes import EnvelopePeakEchoExtractor, pair_echoes
+from fusion_center.mapping.echoes import pair_echoes
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import invert_image
-from fusion_center.mapping.pipeline import MapperConfig
+from fusion_center.mapping.pipeline import MapperConfig, echo_extractor
 from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.turn_closure import (
     EchoBearingTurnCloser,
@@ -134,18 +134,7 @@ def scan_front_end(
     ``(dx, dy, dyaw)`` since the previous acquisition (required: the path is built on it).
     """
     cfg = config or MapperConfig()
-    ext = EnvelopePeakEchoExtractor(
-        fs=fs,
-        t0=t0,
-        bandwidth=bandwidth,
-        min_range=cfg.min_range,
-        max_range=cfg.max_range,
-        threshold=cfg.threshold,
-        dynamic_db=cfg.dynamic_db,
-        max_echoes=cfg.max_echoes,
-        alpha=cfg.background_alpha,
-        warmup=cfg.warmup,
-    )
+    ext = echo_extractor(cfg, fs=fs, t0=t0, bandwidth=bandwidth)
     pair_gate = cfg.pair_gate
     ts: list[float] = []
     odos: list[FloatArray] = []

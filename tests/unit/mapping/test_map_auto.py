@@ -1,4 +1,4 @@
-"""``uwbnet map``'s automatic choices."""
+"""``uwbnet map``'s automatic choices: the turning step and the wall gap along a stop path."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from uwbnet.map_cmd import turning_step
+from uwbnet.map_cmd import STOP_MAP_SETTINGS, STOP_WALL_GAP_SPACING, stop_wall_gap, turning_step
 
 
 def test_turning_step_is_the_median_of_the_steps_that_do_not_drive() -> None:
@@ -20,3 +20,18 @@ def test_turning_step_is_the_median_of_the_steps_that_do_not_drive() -> None:
     assert abs(turning_step(odo) - step) < math.radians(0.3)
     assert abs(turning_step(-odo) - step) < math.radians(0.3)  # turning the other way
     assert turning_step(drives) is None and turning_step(np.zeros((0, 3))) is None
+
+
+def test_the_wall_gap_exceeds_the_spacing_of_the_stops() -> None:
+    floor = STOP_MAP_SETTINGS["wall_gap"]
+    # room_pillar-like: stops about 0.5 m apart keep the 1 m floor
+    dense = np.array([[x, y] for x in np.arange(0, 3, 0.5) for y in np.arange(0, 2, 0.5)])
+    assert stop_wall_gap(dense) == floor
+    # a tour with stops 2 m apart (and one far one): the gap follows the median spacing, so a
+    # wall seen from neighbouring stops is not cut at every stop's foot
+    rng = np.random.default_rng(1)
+    sparse = np.array([[x, y] for x in np.arange(0, 8, 2.0) for y in (0.0, 2.0)])
+    sparse = np.vstack([sparse + rng.normal(0, 0.01, sparse.shape), [[20.0, 20.0]]])
+    gap = stop_wall_gap(sparse)
+    assert abs(gap - STOP_WALL_GAP_SPACING * 2.0) < 0.05
+    assert stop_wall_gap(sparse[:1]) == floor and stop_wall_gap(np.zeros((0, 2))) == floor

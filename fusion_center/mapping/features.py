@@ -300,7 +300,7 @@ def close_outline(
     path: npt.ArrayLike,
     *,
     reach: float = 2.5,
-    overshoot: float = 0.75,
+    overshoot: float = 0.3,
     min_angle: float = np.radians(75.0),
     confirm: float = 0.5,
     clearance: float = 0.3,
@@ -312,7 +312,8 @@ def close_outline(
     perpendiculars (the specular points), so the mapped extents stop short of the corners.
     Two mapped walls ``i``, ``j`` are closed at the intersection ``X`` of their lines when
 
-    * their lines meet at ``min_angle`` (rad) or more;
+    * their lines meet at ``min_angle`` (rad) or more (at 60 degrees a ghost face at 71
+      degrees closed with a box's face on room_pillar);
     * ``X`` lies beyond (or at most ``overshoot`` m inside) one end of each, at most
       ``reach`` m beyond it;
     * each wall approaches ``X`` from the same side of the other as the robot saw that one
@@ -320,13 +321,15 @@ def close_outline(
       from behind a convex one (the inner corner of an L, a pillar's edge); mixed is no
       corner;
     * neither extension crosses the robot's path or another mapped wall, nor passes within
-      ``clearance`` m of a robot position (the robot drove or stood there).
+      ``clearance`` m of a robot position (the robot drove or stood there);
+    * no mapped wall lies between ``X`` and the poses the two walls were seen from (two
+      multipath ghosts beyond a room wall can meet at right angles).
 
     Each wall end takes at most one closure, the shortest extensions first (those with a
     mapped corner within ``confirm`` m of ``X``, the double reflection that confirms it,
     before all others). The ends move to ``X`` (extended, or trimmed where they overshot).
     A concave closure adds ``X`` to the corners unless a mapped corner lies within
-    ``confirm`` m; a convex one adds nothing (an edge; its echo is a point's, Section 6.1).
+    ``confirm`` m; a convex one adds nothing (an edge, which echoes as a point).
 
     Beyond the chapter (geometric post-processing of the map, as :func:`build_map`'s wall
     extension); docs/mapping.md "Closing the outline".
@@ -343,12 +346,12 @@ def close_outline(
         Walls with moved ends (same order), corners with the implied ones appended, points
         unchanged.
     """
+    if not (reach > 0.0 and overshoot >= 0.0 and 0.0 < min_angle <= np.pi / 2):
+        raise ValueError("close_outline needs reach > 0, overshoot >= 0, 0 < min_angle <= pi/2")
     walls = np.asarray(the_map.walls, float).reshape(-1, 4)
     xy = np.asarray(path, float).reshape(-1, 2)
     if len(walls) < 2 or len(xy) == 0:
         return the_map
-    if not (reach > 0.0 and overshoot >= 0.0 and 0.0 < min_angle <= np.pi / 2):
-        raise ValueError("close_outline needs reach > 0, overshoot >= 0, 0 < min_angle <= pi/2")
     p, q = walls[:, :2], walls[:, 2:]
     length = np.linalg.norm(q - p, axis=1)
     u = (q - p) / np.maximum(length, 1e-12)[:, None]

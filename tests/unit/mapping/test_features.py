@@ -86,6 +86,10 @@ def test_parallel_far_or_inconsistent_walls_stay_open() -> None:
     # the intersection inside a wall's observed extent (a corridor opening, not a corner)
     m, c = _closed([[1, 0, 4, 0], [6, -2, 6, 3]], [[2, 1], [5, 1.5]])
     np.testing.assert_array_equal(c.walls, m.walls)
+    # a face ending 0.5 m short of a wall that goes on 0.6 m past their intersection (a
+    # cabinet's side at a room wall): the room wall is not cut back
+    m, c = _closed([[-0.6, 0, 4, 0], [0, 3, 0, 0.5]], [[2, 1], [1, 2]])
+    np.testing.assert_array_equal(c.walls, m.walls)
 
 
 def test_no_closure_across_the_robots_path() -> None:
@@ -102,3 +106,12 @@ def test_no_corner_behind_a_mapped_wall() -> None:
     m, c = _closed(walls, [[2, 1], [3.5, 1], [5, 1]])
     np.testing.assert_array_equal(c.walls, m.walls)
     assert len(c.corners) == 0
+
+
+def test_close_outline_rejects_bad_settings() -> None:
+    import pytest
+
+    from fusion_center.mapping.features import SlamMap, close_outline
+
+    with pytest.raises(ValueError, match="reach"):
+        close_outline(SlamMap(), np.zeros((1, 2)), reach=0.0)

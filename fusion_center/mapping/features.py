@@ -380,11 +380,16 @@ def close_outline(
         near_corner = np.linalg.norm(x[:, None] - mapped_corners[None], axis=-1).min(1) <= confirm
     else:
         near_corner = np.zeros(len(x), bool)
-    # the extensions (from the wall's end to X; none where X is inside) must be free
+    # the extensions (from the wall's end to X; none where X is inside: a trim) must be
+    # free; they start 5 cm out, so that a wall that ends on this one's end is not across
     ends_i = np.where(end[ii, jj][:, None], q[ii], p[ii])
     ends_j = np.where(end[jj, ii][:, None], q[jj], p[jj])
-    starts = np.vstack([ends_i, ends_j])
+    outside = np.r_[beyond[ii, jj], beyond[jj, ii]] > 0.0
     stops = np.vstack([x, x])
+    starts = np.where(outside[:, None], np.vstack([ends_i, ends_j]), stops)
+    span = stops - starts
+    span_len = np.linalg.norm(span, axis=1)
+    starts = starts + span * (np.minimum(0.05, span_len) / np.maximum(span_len, 1e-12))[:, None]
     moving = np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-3
     a_path, b_path = xy[:-1][moving], xy[1:][moving]
     blocked = _segments_cross(starts, stops, a_path, b_path).any(1)

@@ -322,6 +322,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         scenario=scenario,
         smooth=not args.no_smooth,
         localise=args.localise,
+        close=not args.no_close,
     )
     return _run_offline(args, "mapping", run)
 
@@ -828,6 +829,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-smooth",
         action="store_true",
         help="skip the joint least-squares smoothing of path and map (the filter's own map)",
+    )
+    mp.add_argument(
+        "--no-close",
+        action="store_true",
+        help="leave the walls' ends where their echoes put them (no closing of the outline: "
+        "walls that meet extended to their corner)",
     )
     mp.set_defaults(func=cmd_map)
 

@@ -298,6 +298,7 @@ def map_recording(
     progress: Callable[[int], None] | None = None,
     smooth: bool = True,
     localise: str = "auto",
+    close: bool = True,
 ) -> MapStats:
     """Map a robot recording; write ``out`` (map.json) and optionally ``png``.
 
@@ -309,10 +310,15 @@ def map_recording(
     jointly by least squares (:meth:`fusion_center.mapping.EchoSlamMapper.smooth`), map.json
     holds the smoothed ones and ``stats.eval_filter`` scores the filter's own. With
     ``scenario`` (a loaded scenario) and ``truth`` messages in the recording, ``stats.eval``
-    holds the map's errors (:func:`uwbnet.map_eval.evaluate_map`). Outputs appear only when
-    complete. Bad messages are counted in ``rejected`` and logged.
+    holds the map's errors (:func:`uwbnet.map_eval.evaluate_map`). With ``close``, mapped
+    walls that meet are extended to their corner and the concave corners added
+    (:func:`fusion_center.mapping.features.close_outline`, both localisers; the filter's own
+    map in ``eval_filter`` too). Outputs appear only when complete. Bad messages are counted
+    in ``rejected`` and logged.
     """
     import time
+
+    from fusion_center.mapping.features import close_outline
 
     if method not in ASSOCIATIONS:
         raise MappingError(f"unknown association {method!r} ({', '.join(ASSOCIATIONS)})")
@@ -401,6 +407,14 @@ def map_recording(
             else:
                 log.warning("%s: not smoothed (an ir without odometry): the filter's map", path)
         stats.pairs_seen, stats.pairs_used = mapper.pairs_seen, mapper.pairs_used
+    if close and traj:
+        # the walls' ends to the corners they imply, along the path that saw them
+        unsmoothed = the_map is filter_map
+        the_map = close_outline(the_map, np.array(traj, float)[:, 1:3])
+        if unsmoothed:
+            filter_map = the_map
+        elif filter_map is not None and filter_traj:
+            filter_map = close_outline(filter_map, np.array(filter_traj, float)[:, 1:3])
     stats.wall_s = round(time.perf_counter() - t_start, 2)
     stats.walls, stats.corners, stats.points = (
         len(the_map.walls),

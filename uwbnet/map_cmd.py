@@ -67,12 +67,18 @@ STOP_MAP_SETTINGS = {"wall_gap": 1.0, "drop_crossed": True}
 #: the merged walls' mean position 0.05 -> 0.05-0.08 m (0.07 -> 0.19 m where the path is
 #: turned by 5 degrees, lab_skew).
 STOP_WALL_GAP_SPACING = 1.5
+#: ... and at most this (m): the gap also decides which collinear walls merge
+#: (``build_map``'s ``merge_gap``), and a longer one would join two walls across a doorway
+#: (unmeasured: no recorded room has one; lab_skew's stops 1.5 m apart give 2.3 m).
+STOP_WALL_GAP_MAX = 2.5
 #: ``--association auto`` for the filter: state space when the robot turns in steps of at
 #: least this (rad; median over the first :data:`AUTO_LOOKAHEAD` acquisitions' turning steps),
 #: measurement space otherwise. The measurement space's echo tracks need small steps (3
 #: degrees); at 15 degrees they break (corridor_L_sparse seeds 1 / 2 / 3, state against
 #: measurement: path 0.36 / 0.31 / 0.07 m against 0.40 / 0.47 / 0.22 m, 5 / 4 / 4 of 6 faces
-#: against 2 / 2 / 2, outline 44-45 % against 36-40 %).
+#: against 2 / 2 / 2, outline 44-45 % against 36-40 %). ``--localise auto`` reuses it over
+#: all acquisitions (the stop graph works at 6-degree steps and fails at 15; between them it
+#: is not measured).
 AUTO_STATE_STEP = math.radians(10.0)
 AUTO_LOOKAHEAD = 12
 ASSOCIATIONS = ("auto", "measurement", "state")
@@ -106,6 +112,7 @@ class MapStats:
     stops_closed: int = 0
     registrations: int = 0
     stops_registered: int = 0
+    wall_gap: float | None = None
     eval: dict[str, Any] | None = None
     eval_filter: dict[str, Any] | None = None
 
@@ -242,6 +249,11 @@ def _map_by_stops(
         raise MappingError(f"{path}: {exc}") from None
     if missing:
         raise _NotStopsError(f"the ir at t = {missing[0]} s has no odometry")
+    # the turning step needs only the odometry: a recording the stop graph does not suit is
+    # refused before the stop graph is paid for
+    step = turning_step(scans.odometry)
+    if auto and (why := stops_unsuited(step, None, None)) is not None:
+        raise _NotStopsError(why)
     estimator = StopGraphPathEstimator(antennas)
     try:
         res = estimator.estimate(scans)
@@ -259,22 +271,19 @@ def _map_by_stops(
     stats.stops_closed = sum(res.stops[i].closed for i in turns)
     stats.registrations = res.n_registered
     stats.stops_registered = len(joined.intersection(turns))
-    step = turning_step(scans.odometry)
-    if auto and step is not None and step >= AUTO_STATE_STEP:
-        raise _NotStopsError(f"turning steps of {math.degrees(step):.0f} degrees")
-    if auto and stats.stops_registered < AUTO_MIN_REGISTERED * max(stats.stops, 1):
-        raise _NotStopsError(
-            f"registrations join {stats.stops_registered} of {stats.stops} stops to another"
-        )
+    why = stops_unsuited(step, stats.stops, stats.stops_registered)
+    if why is not None and auto:
+        raise _NotStopsError(why)
+    if why is not None:  # forced: mapped all the same, the user is told what it rests on
+        log.warning("%s: the stop graph maps it although %s", path, why)
+    stats.wall_gap = stop_wall_gap(res.stop_poses[turns, :2])
     try:
         built = map_fixed_path(
             scans.pairs,
             scans.groups,
             res.trajectory[:, 1:],
             antennas,
-            FixedPathConfig(
-                **{**STOP_MAP_SETTINGS, "wall_gap": stop_wall_gap(res.stop_poses[turns, :2])}
-            ),
+            FixedPathConfig(**{**STOP_MAP_SETTINGS, "wall_gap": stats.wall_gap}),
         )
     except ValueError as exc:
         if auto:
@@ -438,6 +447,7 @@ def map_recording(
             stops_closed=stats.stops_closed,
             registrations=stats.registrations,
             stops_registered=stats.stops_registered,
+            wall_gap=stats.wall_gap,
         )
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)
@@ -476,17 +486,33 @@ def _association(method: str, first: list[Ir]) -> str:
     return "measurement"
 
 
+def stops_unsuited(step: float | None, stops: int | None, joined: int | None) -> str | None:
+    """Why ``--localise auto`` does not take the stop graph, or None (a heuristic rule, its
+    thresholds measured on the recordings in :data:`AUTO_MIN_REGISTERED`'s comment).
+
+    ``step``: the robot's median turning step (rad, :func:`turning_step`; None: it never
+    turns on the spot); ``stops``: the stop graph's stops (None: not built yet, only the step
+    is tested); ``joined``: how many of them a registration joins to another stop."""
+    if step is not None and step >= AUTO_STATE_STEP:
+        return f"turning steps of {math.degrees(step):.0f} degrees"
+    if stops is not None and (joined or 0) < AUTO_MIN_REGISTERED * max(stops, 1):
+        return f"registrations join {joined or 0} of {stops} stops to another"
+    return None
+
+
 def stop_wall_gap(stops: np.ndarray) -> float:
-    """``wall_gap`` of the map along a stop path (m): ``STOP_MAP_SETTINGS``' floor, or
-    :data:`STOP_WALL_GAP_SPACING` times the median distance of a stop (positions, shape
-    (n, 2), m) to its nearest other stop when that is larger."""
+    """``wall_gap`` of the map along a stop path (m; a heuristic rule): ``STOP_MAP_SETTINGS``'
+    floor, or :data:`STOP_WALL_GAP_SPACING` times the median distance of a stop (positions,
+    shape (n, 2), m) to its nearest other stop when that is larger, at most
+    :data:`STOP_WALL_GAP_MAX`."""
     xy = np.asarray(stops, float).reshape(-1, 2)
     floor = float(STOP_MAP_SETTINGS["wall_gap"])
     if xy.shape[0] < 2:
         return floor
     d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
     np.fill_diagonal(d, np.inf)
-    return max(floor, STOP_WALL_GAP_SPACING * float(np.median(d.min(1))))
+    gap = STOP_WALL_GAP_SPACING * float(np.median(d.min(1)))
+    return min(max(floor, gap), STOP_WALL_GAP_MAX)
 
 
 def turning_step(odometry: np.ndarray, drive: float = 0.1) -> float | None:

@@ -127,7 +127,8 @@ class FixedPathConfig:
         (:func:`~fusion_center.mapping.features.build_map`'s ``merge_gap``). It must exceed
         the spacing of the stops, whose feet on a wall are its only specular points: 2.5 m
         found more faces with fewer ghosts on room_pillar (stops 0.5-1 m apart) but split
-        every wall of corridor_L_sparse into unsupported pieces, so it is off.
+        every wall of corridor_L_sparse into unsupported pieces, so it is off by default;
+        ``uwbnet map`` sets it from the stop path's spacing (``map_cmd.stop_wall_gap``).
     min_wall_length : float
         Shortest wall segment mapped (between its extent quantiles), m: a corner's echoes
         seen from stops in line with it also fit a short wall through it.

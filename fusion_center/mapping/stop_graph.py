@@ -60,6 +60,13 @@ from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import invert_image
 from fusion_center.mapping.pipeline import MapperConfig, echo_extractor
 from fusion_center.mapping.relocalise import compose_poses
+from fusion_center.mapping.stop_bundle import (
+    StopBundleConfig,
+    adjust_stop_bundle,
+    drift_basis,
+    drift_prior,
+)
+from fusion_center.mapping.stop_bundle import sqrt_information as _sqrt_info
 from fusion_center.mapping.turn_closure import (
     EchoBearingTurnCloser,
     TurnClosureConfig,
@@ -382,6 +389,12 @@ class StopGraphConfig:
     refine_distance : float
         Stops closer than this by the graph's estimate give the refinement their reflector
         correspondences at that estimate, registered or not, m (0: only the registrations).
+    bundle_adjust : bool
+        After the refinement, adjust the stop poses, every stop's in-stop heading drift and
+        the landmarks jointly over the individual echo pairs
+        (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`, with the
+        estimator's :class:`~fusion_center.mapping.stop_bundle.StopBundleConfig`). Default
+        False: not yet better on both room_pillar recordings.
     """
 
     drive_reset: float = 0.1
@@ -421,6 +434,7 @@ class StopGraphConfig:
     closure_marginal: bool = False
     refine_min_matches: int = 8
     refine_distance: float = 3.0
+    bundle_adjust: bool = False
 
     def __post_init__(self) -> None:
         for name in (
@@ -566,8 +580,7 @@ def turn_basis(phase: npt.ArrayLike) -> FloatArray:
     ``[f, sin(pi f)]``, a drift that grows to the end of the turn and a bridge that returns
     to zero at its end. On room_pillar they leave 0.45-0.48 deg RMS of the turn-closed
     headings' 1.0-1.7 deg (beyond the chapter; a random walk's first two modes)."""
-    f = np.asarray(phase, float).reshape(-1)
-    return np.column_stack([f, np.sin(np.pi * f)])
+    return drift_basis(phase, 2)
 
 
 def _merge_reflectors(
@@ -1102,13 +1115,6 @@ def relative_covariance(poses: FloatArray, cov: FloatArray, i: int, j: int) -> F
     return jac @ cov[np.ix_(sel, sel)] @ jac.T
 
 
-def _sqrt_info(cov: FloatArray) -> FloatArray:
-    """``W`` (3, 3) with ``W^T W = cov^{-1}`` (eigen-decomposition of the symmetrised
-    covariance, eigenvalues floored at 1e-12 so a near-singular edge stays finite)."""
-    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-    return (vec / np.sqrt(np.maximum(lam, 1e-12))).T
-
-
 # --------------------------------------------------------------------------- refinement
 
 
@@ -1323,9 +1329,11 @@ class StopGraphResult:
         Final Cauchy weight of each edge.
     registrations : list of tuple (int, int, Registration)
         Every registration tried (accepted or not), with the stops it joined.
-    turn_coefficients : ndarray, shape (S, 2)
+    turn_coefficients : ndarray, shape (S, 2) or (S, modes)
         Each stop's in-stop heading correction of the joint refinement (rad, over
-        :func:`turn_basis`; zeros without it), already in ``stops``' poses and ``trajectory``.
+        :func:`turn_basis`; zeros without it), or with ``bundle_adjust`` of the bundle
+        adjustment (over :func:`~fusion_center.mapping.stop_bundle.drift_basis`, whose first
+        two terms are :func:`turn_basis`), already in ``stops``' poses and ``trajectory``.
     n_registered : int
         Accepted registrations in the graph. 0: the path is the odometry with the turn
         closure alone (no stop had reflectors to register, e.g. no turns on the spot).
@@ -1351,6 +1359,8 @@ class StopGraphPathEstimator:
     config : StopGraphConfig
     closure : TurnClosureConfig, optional
         Turn closure settings; default: its own with the config's slip noise.
+    bundle : StopBundleConfig, optional
+        Settings of the bundle adjustment (``StopGraphConfig.bundle_adjust``).
     """
 
     def __init__(
@@ -1358,6 +1368,7 @@ class StopGraphPathEstimator:
         antennas: npt.ArrayLike,
         config: StopGraphConfig | None = None,
         closure: TurnClosureConfig | None = None,
+        bundle: StopBundleConfig | None = None,
     ) -> None:
         ant = np.asarray(antennas, float)
         if ant.shape != (3, 2) or not np.all(np.isfinite(ant)):
@@ -1377,6 +1388,7 @@ class StopGraphPathEstimator:
         self.point_bias = 0.71 * float(np.mean(np.sum((ant[1:] - ant[0]) ** 2, 1)))
         self.point_bias *= float(cfg.point_scatterers)
         self.registration = ReflectorRegistration(cfg, self.point_bias)
+        self.bundle = bundle or StopBundleConfig()
 
     def odometry_edge(
         self, log: ScanLog, a: StopScan, b: StopScan
@@ -1412,6 +1424,41 @@ class StopGraphPathEstimator:
             pose = compose_poses(pose[None], inc)[0]
         pose[2] = float(_wrap(pose[2]))
         return pose, cov
+
+    def _bundle_adjust(
+        self,
+        log: ScanLog,
+        stops: list[StopScan],
+        poses: FloatArray,
+        coef: FloatArray,
+        odo: list[tuple[FloatArray, FloatArray]],
+    ) -> tuple[FloatArray, FloatArray]:
+        """Stop poses and in-stop drift coefficients (S, modes) of the bundle adjustment
+        over the echo pairs (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`),
+        started from the refinement's (its two coefficients are the first two modes). The
+        drift prior: each turn's end error (``end_sigma``) and the bridge of its odometry's
+        random walk (``odometry_sigma``; ``end_sigma`` when unknown)."""
+        modes = self.bundle.modes
+        init = np.zeros((len(stops), modes))
+        k = min(modes, coef.shape[1])
+        init[:, :k] = coef[:, :k]
+        end = np.array([st.end_sigma for st in stops])
+        walk = np.array([st.odometry_sigma for st in stops])
+        walk = np.where(np.isfinite(walk), walk, end)
+        res = adjust_stop_bundle(
+            log.pairs,
+            log.groups,
+            [(st.start, st.end) for st in stops],
+            [st.poses for st in stops],
+            [st.phase for st in stops],
+            poses,
+            odo,
+            drift_prior(end, walk, modes),
+            self.antennas,
+            self.bundle,
+            initial=init,
+        )
+        return res.poses, res.coefficients
 
     def estimate(self, log: ScanLog) -> StopGraphResult:
         """Stop poses and the path of every acquisition of ``log`` (see the module)."""
@@ -1475,20 +1522,27 @@ class StopGraphPathEstimator:
                 break
             poses, wt = graph.solve(poses)
         coef = np.zeros((n, 2))
+        # the odometry edges from each turn's end without its end heading noise (the
+        # refinements estimate that end)
+        odo = [
+            self.odometry_edge(log, replace(stops[i], end_sigma=0.0), stops[i + 1])
+            for i in range(n - 1)
+            if (cfg.refine_turns or cfg.bundle_adjust) and n > 1
+        ]
         if cfg.refine_turns and n > 1:
-            odo = [
-                self.odometry_edge(log, replace(stops[i], end_sigma=0.0), stops[i + 1])
-                for i in range(n - 1)
-            ]
             poses, coef, _ = refine_turns(
                 stops, graph.edges, wt, poses, odo, cfg, point_bias=self.point_bias
             )
-            stops = [
-                replace(
-                    st, poses=st.poses + np.c_[0.0, 0.0, 1.0] * (turn_basis(st.phase) @ c)[:, None]
-                )
-                for st, c in zip(stops, coef, strict=True)
-            ]
+        if cfg.bundle_adjust and n > 1:
+            poses, coef = self._bundle_adjust(log, stops, poses, coef, odo)
+        modes = coef.shape[1]
+        stops = [
+            replace(
+                st,
+                poses=st.poses + np.c_[0.0, 0.0, 1.0] * (drift_basis(st.phase, modes) @ c)[:, None],
+            )
+            for st, c in zip(stops, coef, strict=True)
+        ]
         traj = np.zeros((log.t.size, 4))
         traj[:, 0] = log.t
         for st, p in zip(stops, poses, strict=True):

@@ -559,7 +559,7 @@ def stop_scan(
     img = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]])
     rho = np.hypot(u[:, 0], u[:, 1])
     world = theta[k] + np.arctan2(u[:, 1], u[:, 0])
-    label = closer._reflectors(gid, rho, world)  # the closure's own joining of echo tracks
+    label = closer.reflectors(gid, rho, world)  # the closure's own joining of echo tracks
     nr = int(label.max()) + 1
     cnt = np.bincount(label, minlength=nr).astype(float)
     med = np.column_stack([group_median(img[:, j], label, nr) for j in range(2)])

@@ -673,21 +673,31 @@ def predicted_images(images_a: FloatArray, pose: FloatArray, point_bias: float =
     point scatterer, removes A's bias and adds B's: shape (n, 3R, 2).
     """
     q = np.asarray(pose, float).reshape(-1, 3)
-    t = q[:, None, :2]
-    norm = np.maximum(np.linalg.norm(images_a, axis=1), 1e-9)
-    nrm = images_a / norm[:, None]
-    s = 0.5 * norm[None] - np.sum(nrm[None] * t, -1)  # (n, R)
-    wall = 2.0 * s[..., None] * nrm[None]  # T' - t
-    wall = np.where((s > 0.05)[..., None], wall, np.nan)
-    point = images_a[None] - 2.0 * t
-    blocks = [wall, point]
-    if point_bias != 0.0:
-        # a point scatterer (not a corner, whose image is exact): a third hypothesis
-        scat = _point_bias(images_a, -point_bias)[None] - 2.0 * t
-        blocks.append(_point_bias(scat.reshape(-1, 2), point_bias).reshape(scat.shape))
+    wall, point, scat = images_seen_from(images_a[None], q[:, None, :2], point_bias)
+    # a point scatterer (not a corner, whose image is exact): a third hypothesis
+    blocks = [wall, point] if scat is None else [wall, point, scat]
     rel = np.concatenate(blocks, axis=1)  # (n, 2R, 2), A-frame axes
     c, sn = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
     return np.stack([c * rel[..., 0] + sn * rel[..., 1], -sn * rel[..., 0] + c * rel[..., 1]], -1)
+
+
+def images_seen_from(
+    images_a: FloatArray, t: FloatArray, point_bias: float = 0.0
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """``T' - t`` (..., 2; A-frame axes, m) of A's reflector images ``images_a`` (..., 2; A
+    frame, A's transmitter at the origin) seen from B's transmitter at ``t`` (..., 2; A
+    frame), broadcast, under each hypothesis (Fig. 19 / eq. (11) of the CoLOR chapter; see
+    :func:`predicted_images`): the wall ``2 (d - n . t) n`` (NaN where B sees it from behind,
+    ``d - n . t <= 0.05``), the corner or point ``I - 2 t``, and the point scatterer with
+    ``point_bias`` (None when it is 0)."""
+    norm = np.maximum(np.linalg.norm(images_a, axis=-1, keepdims=True), 1e-9)
+    nrm = images_a / norm
+    s = 0.5 * norm - np.sum(nrm * t, -1, keepdims=True)
+    wall = np.where(s > 0.05, 2.0 * s * nrm, np.nan)
+    point = images_a - 2.0 * t
+    if point_bias == 0.0:
+        return wall, point, None
+    return wall, point, _point_bias(_point_bias(images_a, -point_bias) - 2.0 * t, point_bias)
 
 
 def _point_bias(images: FloatArray, kappa: float) -> FloatArray:
@@ -1249,17 +1259,13 @@ def refine_turns(
         ib = _rotate(img_b, np.sum(g_b * c[ej], 1))
         pi, pj = p[ei], p[ej]
         t = _rotate(pj[:, :2] - pi[:, :2], -pi[:, 2])
-        norm = np.maximum(np.linalg.norm(ia, axis=1), 1e-9)
-        nrm = ia / norm[:, None]
-        sw = 0.5 * norm - np.sum(nrm * t, 1)
-        pt = np.where(
-            scat[:, None],
-            _point_bias(_point_bias(ia, -point_bias) - 2.0 * t, point_bias),
-            ia - 2.0 * t,
-        )
-        rel = np.where(wall[:, None], 2.0 * sw[:, None] * nrm, pt)
+        w_rel, p_rel, s_rel = images_seen_from(ia, t, point_bias)
+        pt = p_rel if s_rel is None else np.where(scat[:, None], s_rel, p_rel)
+        rel = np.where(wall[:, None], w_rel, pt)
         pred = _rotate(rel, -(pj[:, 2] - pi[:, 2]))
-        return (ib - pred) / sig[:, None]
+        # a wall the refinement moved behind B's transmitter explains nothing (its
+        # correspondence was formed in front, where predicted_images keeps it)
+        return np.nan_to_num((ib - pred) / sig[:, None], nan=0.0)
 
     def fun(x: FloatArray) -> FloatArray:
         p, c = unpack(x)
@@ -1590,6 +1596,7 @@ __all__: Sequence[str] = (
     "StopGraphResult",
     "StopPoseGraph",
     "StopScan",
+    "images_seen_from",
     "predicted_images",
     "refine_turns",
     "relative_covariance",

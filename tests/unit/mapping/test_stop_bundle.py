@@ -118,6 +118,36 @@ def test_bundle_adjustment_recovers_stop_poses_and_in_stop_drift(modes: int) -> 
     assert res.n_pairs > 1000
 
 
+def test_rotation_sigma_holds_the_paths_mean_heading() -> None:
+    """A tight ``rotation_sigma`` keeps the stops' mean heading change from the starting
+    path at zero (the pose graph's rotation of the whole path); free, the adjustment moves
+    it back by the start's error (half a degree)."""
+    p = _problem(11, 2)
+    # the start turned by half a degree about the first stop (the origin)
+    rot = np.radians(0.5)
+    init = p["init"].copy()
+    c, s = np.cos(rot), np.sin(rot)
+    init[1:, :2] = init[1:, :2] @ np.array([[c, s], [-s, c]])
+    init[1:, 2] += rot
+    args = (
+        p["pairs"],
+        p["groups"],
+        p["ranges"],
+        p["in_stop"],
+        p["phase"],
+        init,
+        p["odometry"],
+        p["prior"],
+        ANTENNAS,
+    )
+    held = adjust_stop_bundle(*args, StopBundleConfig(rotation_sigma=1e-6, range_sigma=0.005))
+    free = adjust_stop_bundle(*args, StopBundleConfig(rotation_sigma=np.inf, range_sigma=0.005))
+    mean_held = np.degrees(np.mean(held.poses[1:, 2] - init[1:, 2]))
+    mean_free = np.degrees(np.mean(free.poses[1:, 2] - init[1:, 2]))
+    assert abs(mean_held) < 0.01
+    assert mean_free < -0.3
+
+
 def test_drift_basis_starts_at_zero_and_extends_turn_basis() -> None:
     f = np.linspace(0.0, 1.0, 7)
     b = drift_basis(f, 4)
@@ -133,6 +163,8 @@ def test_bad_input_gives_one_line_value_errors() -> None:
         StopBundleConfig(modes=0)
     with pytest.raises(ValueError, match="range_sigma"):
         StopBundleConfig(range_sigma=-1.0)
+    with pytest.raises(ValueError, match="rotation_sigma"):
+        StopBundleConfig(rotation_sigma=float("nan"))
     with pytest.raises(ValueError, match="same stops"):
         adjust_stop_bundle(
             [np.zeros((0, 2))] * 3,
@@ -163,9 +195,9 @@ def test_fixed_path_map_reports_every_pairs_landmark() -> None:
 
 def test_stop_graph_bundle_adjust_option() -> None:
     """``StopGraphConfig.bundle_adjust`` runs the adjustment after the refinement: the
-    synthetic five-stop run's path comes out within 0.27 degrees and 5 mm RMS of the truth
-    (0.21 degrees and 2 mm; without it 0.32 degrees and 12 mm), its coefficients over
-    ``modes`` terms."""
+    synthetic five-stop run's path comes out within 0.29 degrees and 8 mm RMS of the truth
+    with three modes (0.26 degrees and 5 mm; without it 0.32 degrees and 12 mm), its
+    coefficients over ``modes`` terms."""
     from fusion_center.mapping.stop_graph import (
         StopGraphConfig,
         StopGraphPathEstimator,
@@ -184,5 +216,5 @@ def test_stop_graph_bundle_adjust_option() -> None:
     )
     res = est.estimate(log)
     assert res.turn_coefficients.shape == (5, 3)
-    assert _yaw_rms_deg(res.trajectory[:, 1:], truth) < 0.27
-    assert np.sqrt(np.mean(np.sum((res.trajectory[:, 1:3] - truth[:, :2]) ** 2, 1))) < 0.005
+    assert _yaw_rms_deg(res.trajectory[:, 1:], truth) < 0.29
+    assert np.sqrt(np.mean(np.sum((res.trajectory[:, 1:3] - truth[:, :2]) ** 2, 1))) < 0.008

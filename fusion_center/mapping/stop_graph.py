@@ -769,7 +769,9 @@ class ReflectorRegistration:
         refused = Registration(pose=prior, cov=prior_cov, explained=0.0, matched=0, accepted=False)
         if len(a.images) < cfg.min_matched or len(b.images) < cfg.min_matched:
             return _replace_reason(refused, "too few reflectors")
-        info = np.linalg.inv(prior_cov + np.diag([1e-6, 1e-6, 1e-8]))
+        # the prior's information matrix (its quadratic form over the grid, and the
+        # refinement's normal equations)
+        info = np.linalg.solve(prior_cov + np.diag([1e-6, 1e-6, 1e-8]), np.eye(3))
         sd = np.sqrt(np.diag(prior_cov))
         half_xy = np.clip(3 * sd[:2], cfg.min_window[0], cfg.window[0])
         half_yaw = float(np.clip(3 * sd[2], cfg.min_window[1], cfg.window[1]))
@@ -822,7 +824,7 @@ class ReflectorRegistration:
         d = coarse - pose
         d[:, 2] = _wrap(d[:, 2])
         cov_s = cov + np.diag([cs**2, cs**2, cy**2])
-        m2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov_s), d)
+        m2 = np.einsum("ni,ni->n", d, np.linalg.solve(cov_s, d.T).T)
         far = m2 > 9.0
         if np.any(far):
             # the coarse score at the refined pose's own cell
@@ -943,7 +945,7 @@ class ReflectorRegistration:
         if not np.all(np.isfinite(a_mat)):
             return None, cov, mask
         try:
-            cov = np.linalg.inv(a_mat + np.diag([1e-6, 1e-6, 1e-6]))
+            cov = np.linalg.solve(a_mat + np.diag([1e-6, 1e-6, 1e-6]), np.eye(3))
         except np.linalg.LinAlgError:
             return None, cov, mask
         floor = np.array(

@@ -384,9 +384,13 @@ def _solve(
         r0 += 1
     rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
     ok = cols_a >= 0
-    sparsity = scipy.sparse.coo_matrix(
-        (np.ones(ok.sum()), (rows_a[ok], cols_a[ok])), shape=(r0, n_var)
-    ).tocsr()
+    sparse_rows = r0 - int(hold)  # the rotation hold's dense row is differentiated exactly
+    keep = ok & (rows_a < sparse_rows)
+    jac = _SparseDifferences(fun, rows_a[keep], cols_a[keep], (r0, n_var))
+    if hold:
+        jac.dense_row(
+            r0 - 1, 3 * np.arange(n_stop - 1) + 2, 1.0 / ((n_stop - 1) * cfg.rotation_sigma)
+        )
     x = np.concatenate([pose[1:].ravel(), coef[first:].ravel(), states.ravel()])
     # iteratively reweighted: Cauchy weights on the echo pairs only (a robust loss on the
     # odometry and the drift prior would let a large residual switch them off), and each
@@ -398,14 +402,61 @@ def _solve(
         scale = np.maximum(cfg.range_sigma, 1.4826 * mad)[li]
         chi2 = np.sum((r / scale[:, None]) ** 2, 1)
         weight = 1.0 / (1.0 + chi2 / (2.0 * cfg.loss_scale**2))
-        sol = least_squares(
-            fun, x, jac_sparsity=sparsity, method="trf", x_scale="jac", max_nfev=cfg.max_nfev
-        )
+        sol = least_squares(fun, x, jac=jac, method="trf", x_scale="jac", max_nfev=cfg.max_nfev)
         x = sol.x
     p, c, st = unpack(x)
     p = p.copy()
     p[:, 2] = (p[:, 2] + np.pi) % (2 * np.pi) - np.pi
     return p, c.copy(), st.copy()
+
+
+class _SparseDifferences:
+    """Forward-difference Jacobian of ``fun`` with a known sparsity (``rows``, ``cols``):
+    columns that share no row are perturbed together (greedy colouring, Curtis, Powell and
+    Reid 1974, as :func:`scipy.optimize.least_squares` does with ``jac_sparsity``), and a
+    linear dense row is set exactly (:meth:`dense_row`): left to the differences, it would
+    put every one of its columns into a group of its own."""
+
+    def __init__(
+        self,
+        fun: object,
+        rows: npt.NDArray[np.intp],
+        cols: npt.NDArray[np.intp],
+        shape: tuple[int, int],
+    ) -> None:
+        self.fun, self.rows, self.cols, self.shape = fun, rows, cols, shape
+        pattern = scipy.sparse.csr_matrix((np.ones(rows.size), (rows, cols)), shape=shape)
+        conflict = (pattern.T @ pattern).tocsr()
+        group = np.full(shape[1], -1)
+        for j in range(shape[1]):  # a loop over the unknowns (hundreds), once per solve
+            taken = group[conflict.indices[conflict.indptr[j] : conflict.indptr[j + 1]]]
+            free = np.setdiff1d(np.arange(taken.size + 1), taken)
+            group[j] = free[0]
+        self.group = group
+        self.extra: list[tuple[int, npt.NDArray[np.intp], float]] = []
+
+    def dense_row(self, row: int, cols: npt.NDArray[np.intp], value: float) -> None:
+        """Row ``row`` is ``value`` at ``cols`` (a residual linear in them) and 0 elsewhere."""
+        self.extra.append((row, cols, value))
+
+    def __call__(self, x: FloatArray) -> scipy.sparse.csr_matrix:
+        f0 = self.fun(x)  # type: ignore[operator]
+        h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
+        vals = np.zeros(self.rows.size)
+        col_group = self.group[self.cols]
+        for g in range(int(self.group.max()) + 1):  # one evaluation per colour group
+            step = np.where(self.group == g, h, 0.0)
+            f1 = self.fun(x + step)  # type: ignore[operator]
+            on = col_group == g
+            vals[on] = (f1[self.rows[on]] - f0[self.rows[on]]) / h[self.cols[on]]
+        rows, cols = [self.rows], [self.cols]
+        for row, c, v in self.extra:
+            rows.append(np.full(c.size, row))
+            cols.append(c)
+            vals = np.r_[vals, np.full(c.size, v)]
+        return scipy.sparse.csr_matrix(
+            (vals, (np.concatenate(rows), np.concatenate(cols))), shape=self.shape
+        )
 
 
 def sqrt_information(cov: FloatArray) -> FloatArray:

@@ -218,3 +218,26 @@ def test_stop_graph_bundle_adjust_option() -> None:
     assert res.turn_coefficients.shape == (5, 3)
     assert _yaw_rms_deg(res.trajectory[:, 1:], truth) < 0.29
     assert np.sqrt(np.mean(np.sum((res.trajectory[:, 1:3] - truth[:, :2]) ** 2, 1))) < 0.008
+
+
+def test_sparse_differences_match_the_dense_jacobian() -> None:
+    """The grouped forward differences with an exact dense row equal the dense Jacobian
+    (a chain of products, as a pose chain couples neighbours, and a mean over all)."""
+    from fusion_center.mapping.stop_bundle import _SparseDifferences
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return np.r_[x[:-1] * x[1:], np.sin(x), 0.5 * np.sum(x)]
+
+    n = 9
+    rows = np.r_[np.repeat(np.arange(n - 1), 2), n - 1 + np.arange(n)]
+    cols = np.r_[np.column_stack([np.arange(n - 1), np.arange(1, n)]).ravel(), np.arange(n)]
+    jac = _SparseDifferences(fun, rows, cols, (2 * n, n))
+    jac.dense_row(2 * n - 1, np.arange(n), 0.5)
+    assert jac.group.max() + 1 <= 3  # neighbours conflict, the dense row does not count
+    x = np.random.default_rng(0).normal(size=n)
+    dense = np.zeros((2 * n, n))
+    for i in range(n - 1):
+        dense[i, i], dense[i, i + 1] = x[i + 1], x[i]
+    dense[n - 1 + np.arange(n), np.arange(n)] = np.cos(x)
+    dense[-1] = 0.5
+    np.testing.assert_allclose(jac(x).toarray(), dense, atol=1e-6)

@@ -7,8 +7,9 @@ stop: here the stop poses, a richer in-stop heading drift per stop and the landm
 refined jointly over every echo pair ``(r_1, r_2)`` of every acquisition, through the
 Fig. 19 / eq. (11) range models (:func:`~fusion_center.mapping.models.predict`). A bundle
 adjustment in the sense of Triggs et al., "Bundle adjustment - a modern synthesis" (Vision
-Algorithms 2000): robust (Cauchy) and sparse (:func:`scipy.optimize.least_squares` with
-``jac_sparsity``), the gauge fixed at the first stop's pose.
+Algorithms 2000): robust (Cauchy, iteratively reweighted) and sparse
+(:func:`scipy.optimize.least_squares` with a forward-difference Jacobian over groups of
+columns that share no residual), the gauge fixed at the first stop's pose.
 
 The landmarks and the association of every pair with one come from the map along the
 current path (:func:`~fusion_center.mapping.fixed_path.map_fixed_path`), which is rebuilt
@@ -25,11 +26,15 @@ coefficients ``c_s`` per stop of its in-stop heading correction ``b(f_k) . c_s``
        (p_i + b(f_i) \cdot c_{s(i)}))}{\sigma_r}\Bigr)
      + \tfrac12 \sum_s \lVert L_s^T (x_s^{-1} \oplus x_{s+1} - z_s(c_s)) \rVert^2
      + \tfrac12 \sum_s \lVert c_s / \sigma_c \rVert^2
+     + \tfrac12 \Bigl(\frac{\overline{\psi_s - \psi_s^0}}{\sigma_\psi}\Bigr)^2
 
-with ``rho`` the Cauchy loss (scale ``loss_scale``), ``h`` the Fig. 19 model of the
+with ``rho`` the Cauchy loss (scale ``loss_scale``; ``sigma_r`` each landmark's robust
+residual scale, at least ``range_sigma``), ``h`` the Fig. 19 model of the
 landmark's kind, ``p_i`` the acquisition's in-stop pose of the turn closure, ``z_s`` the
 odometry from stop s to s+1 (its drive turned by stop s's end correction) with covariance
-``L_s L_s^T`` and ``sigma_c`` a random walk's prior on the drift coefficients.
+``L_s L_s^T``, ``sigma_c`` a random walk's prior on the drift coefficients and the last
+term the stops' mean heading change from the starting path (``rotation_sigma``: the pose
+graph's rotation of the whole path, which the echo pairs alone hardly observe).
 """
 
 from __future__ import annotations
@@ -170,7 +175,7 @@ def _ranges(
 class StopBundleResult:
     """Output of :func:`adjust_stop_bundle`: the stop poses (S, 3), the drift coefficients
     (S, modes; rad, over :func:`drift_basis`), the landmarks' kinds and states of the last
-    round, the pairs the last round used and their final Cauchy weights' median."""
+    round and the number of echo pairs it used."""
 
     poses: FloatArray
     coefficients: FloatArray

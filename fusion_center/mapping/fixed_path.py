@@ -270,6 +270,9 @@ class FixedPathMap:
     undecided : ndarray of bool
         Which of the landmarks (``kinds``) are point-like with corner and point within
         ``kind_margin`` of each other in the last fit (their kind was kept).
+    association : ndarray of int, shape (m,)
+        Landmark (index into ``kinds``) of every echo pair, in the order of the pairs
+        concatenated over the acquisitions; -1: none (empty when no landmark was formed).
     """
 
     map: SlamMap
@@ -280,6 +283,7 @@ class FixedPathMap:
     stops: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
     stop_corrections: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     undecided: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    association: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def _world_array(poses: FloatArray, antennas: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -874,6 +878,7 @@ class _FixedPathMapper:
             stops=stops.astype(np.int64),
             stop_corrections=self.corr.copy(),
             undecided=self.undecided.copy(),
+            association=lm.astype(np.int64),
         )
 
     def crossed(self, walls: FloatArray) -> npt.NDArray[np.bool_]:

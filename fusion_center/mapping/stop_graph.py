@@ -60,6 +60,13 @@ from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import invert_image
 from fusion_center.mapping.pipeline import MapperConfig, echo_extractor
 from fusion_center.mapping.relocalise import compose_poses
+from fusion_center.mapping.stop_bundle import (
+    StopBundleConfig,
+    adjust_stop_bundle,
+    drift_basis,
+    drift_prior,
+)
+from fusion_center.mapping.stop_bundle import sqrt_information as _sqrt_info
 from fusion_center.mapping.turn_closure import (
     EchoBearingTurnCloser,
     TurnClosureConfig,
@@ -382,6 +389,12 @@ class StopGraphConfig:
     refine_distance : float
         Stops closer than this by the graph's estimate give the refinement their reflector
         correspondences at that estimate, registered or not, m (0: only the registrations).
+    bundle_adjust : bool
+        After the refinement, adjust the stop poses, every stop's in-stop heading drift and
+        the landmarks jointly over the individual echo pairs
+        (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`, with the
+        estimator's :class:`~fusion_center.mapping.stop_bundle.StopBundleConfig`). Default
+        False: not yet better on both room_pillar recordings.
     """
 
     drive_reset: float = 0.1
@@ -421,6 +434,7 @@ class StopGraphConfig:
     closure_marginal: bool = False
     refine_min_matches: int = 8
     refine_distance: float = 3.0
+    bundle_adjust: bool = False
 
     def __post_init__(self) -> None:
         for name in (
@@ -545,7 +559,7 @@ def stop_scan(
     img = np.column_stack([c * u[:, 0] - s * u[:, 1], s * u[:, 0] + c * u[:, 1]])
     rho = np.hypot(u[:, 0], u[:, 1])
     world = theta[k] + np.arctan2(u[:, 1], u[:, 0])
-    label = closer._reflectors(gid, rho, world)  # the closure's own joining of echo tracks
+    label = closer.reflectors(gid, rho, world)  # the closure's own joining of echo tracks
     nr = int(label.max()) + 1
     cnt = np.bincount(label, minlength=nr).astype(float)
     med = np.column_stack([group_median(img[:, j], label, nr) for j in range(2)])
@@ -566,8 +580,7 @@ def turn_basis(phase: npt.ArrayLike) -> FloatArray:
     ``[f, sin(pi f)]``, a drift that grows to the end of the turn and a bridge that returns
     to zero at its end. On room_pillar they leave 0.45-0.48 deg RMS of the turn-closed
     headings' 1.0-1.7 deg (beyond the chapter; a random walk's first two modes)."""
-    f = np.asarray(phase, float).reshape(-1)
-    return np.column_stack([f, np.sin(np.pi * f)])
+    return drift_basis(phase, 2)
 
 
 def _merge_reflectors(
@@ -660,21 +673,31 @@ def predicted_images(images_a: FloatArray, pose: FloatArray, point_bias: float =
     point scatterer, removes A's bias and adds B's: shape (n, 3R, 2).
     """
     q = np.asarray(pose, float).reshape(-1, 3)
-    t = q[:, None, :2]
-    norm = np.maximum(np.linalg.norm(images_a, axis=1), 1e-9)
-    nrm = images_a / norm[:, None]
-    s = 0.5 * norm[None] - np.sum(nrm[None] * t, -1)  # (n, R)
-    wall = 2.0 * s[..., None] * nrm[None]  # T' - t
-    wall = np.where((s > 0.05)[..., None], wall, np.nan)
-    point = images_a[None] - 2.0 * t
-    blocks = [wall, point]
-    if point_bias != 0.0:
-        # a point scatterer (not a corner, whose image is exact): a third hypothesis
-        scat = _point_bias(images_a, -point_bias)[None] - 2.0 * t
-        blocks.append(_point_bias(scat.reshape(-1, 2), point_bias).reshape(scat.shape))
+    wall, point, scat = images_seen_from(images_a[None], q[:, None, :2], point_bias)
+    # a point scatterer (not a corner, whose image is exact): a third hypothesis
+    blocks = [wall, point] if scat is None else [wall, point, scat]
     rel = np.concatenate(blocks, axis=1)  # (n, 2R, 2), A-frame axes
     c, sn = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
     return np.stack([c * rel[..., 0] + sn * rel[..., 1], -sn * rel[..., 0] + c * rel[..., 1]], -1)
+
+
+def images_seen_from(
+    images_a: FloatArray, t: FloatArray, point_bias: float = 0.0
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """``T' - t`` (..., 2; A-frame axes, m) of A's reflector images ``images_a`` (..., 2; A
+    frame, A's transmitter at the origin) seen from B's transmitter at ``t`` (..., 2; A
+    frame), broadcast, under each hypothesis (Fig. 19 / eq. (11) of the CoLOR chapter; see
+    :func:`predicted_images`): the wall ``2 (d - n . t) n`` (NaN where B sees it from behind,
+    ``d - n . t <= 0.05``), the corner or point ``I - 2 t``, and the point scatterer with
+    ``point_bias`` (None when it is 0)."""
+    norm = np.maximum(np.linalg.norm(images_a, axis=-1, keepdims=True), 1e-9)
+    nrm = images_a / norm
+    s = 0.5 * norm - np.sum(nrm * t, -1, keepdims=True)
+    wall = np.where(s > 0.05, 2.0 * s * nrm, np.nan)
+    point = images_a - 2.0 * t
+    if point_bias == 0.0:
+        return wall, point, None
+    return wall, point, _point_bias(_point_bias(images_a, -point_bias) - 2.0 * t, point_bias)
 
 
 def _point_bias(images: FloatArray, kappa: float) -> FloatArray:
@@ -746,7 +769,9 @@ class ReflectorRegistration:
         refused = Registration(pose=prior, cov=prior_cov, explained=0.0, matched=0, accepted=False)
         if len(a.images) < cfg.min_matched or len(b.images) < cfg.min_matched:
             return _replace_reason(refused, "too few reflectors")
-        info = np.linalg.inv(prior_cov + np.diag([1e-6, 1e-6, 1e-8]))
+        # the prior's information matrix (its quadratic form over the grid, and the
+        # refinement's normal equations)
+        info = np.linalg.solve(prior_cov + np.diag([1e-6, 1e-6, 1e-8]), np.eye(3))
         sd = np.sqrt(np.diag(prior_cov))
         half_xy = np.clip(3 * sd[:2], cfg.min_window[0], cfg.window[0])
         half_yaw = float(np.clip(3 * sd[2], cfg.min_window[1], cfg.window[1]))
@@ -799,7 +824,7 @@ class ReflectorRegistration:
         d = coarse - pose
         d[:, 2] = _wrap(d[:, 2])
         cov_s = cov + np.diag([cs**2, cs**2, cy**2])
-        m2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov_s), d)
+        m2 = np.einsum("ni,ni->n", d, np.linalg.solve(cov_s, d.T).T)
         far = m2 > 9.0
         if np.any(far):
             # the coarse score at the refined pose's own cell
@@ -920,7 +945,7 @@ class ReflectorRegistration:
         if not np.all(np.isfinite(a_mat)):
             return None, cov, mask
         try:
-            cov = np.linalg.inv(a_mat + np.diag([1e-6, 1e-6, 1e-6]))
+            cov = np.linalg.solve(a_mat + np.diag([1e-6, 1e-6, 1e-6]), np.eye(3))
         except np.linalg.LinAlgError:
             return None, cov, mask
         floor = np.array(
@@ -1102,13 +1127,6 @@ def relative_covariance(poses: FloatArray, cov: FloatArray, i: int, j: int) -> F
     return jac @ cov[np.ix_(sel, sel)] @ jac.T
 
 
-def _sqrt_info(cov: FloatArray) -> FloatArray:
-    """``W`` (3, 3) with ``W^T W = cov^{-1}`` (eigen-decomposition of the symmetrised
-    covariance, eigenvalues floored at 1e-12 so a near-singular edge stays finite)."""
-    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-    return (vec / np.sqrt(np.maximum(lam, 1e-12))).T
-
-
 # --------------------------------------------------------------------------- refinement
 
 
@@ -1243,17 +1261,13 @@ def refine_turns(
         ib = _rotate(img_b, np.sum(g_b * c[ej], 1))
         pi, pj = p[ei], p[ej]
         t = _rotate(pj[:, :2] - pi[:, :2], -pi[:, 2])
-        norm = np.maximum(np.linalg.norm(ia, axis=1), 1e-9)
-        nrm = ia / norm[:, None]
-        sw = 0.5 * norm - np.sum(nrm * t, 1)
-        pt = np.where(
-            scat[:, None],
-            _point_bias(_point_bias(ia, -point_bias) - 2.0 * t, point_bias),
-            ia - 2.0 * t,
-        )
-        rel = np.where(wall[:, None], 2.0 * sw[:, None] * nrm, pt)
+        w_rel, p_rel, s_rel = images_seen_from(ia, t, point_bias)
+        pt = p_rel if s_rel is None else np.where(scat[:, None], s_rel, p_rel)
+        rel = np.where(wall[:, None], w_rel, pt)
         pred = _rotate(rel, -(pj[:, 2] - pi[:, 2]))
-        return (ib - pred) / sig[:, None]
+        # a wall the refinement moved behind B's transmitter explains nothing (its
+        # correspondence was formed in front, where predicted_images keeps it)
+        return np.nan_to_num((ib - pred) / sig[:, None], nan=0.0)
 
     def fun(x: FloatArray) -> FloatArray:
         p, c = unpack(x)
@@ -1323,9 +1337,11 @@ class StopGraphResult:
         Final Cauchy weight of each edge.
     registrations : list of tuple (int, int, Registration)
         Every registration tried (accepted or not), with the stops it joined.
-    turn_coefficients : ndarray, shape (S, 2)
+    turn_coefficients : ndarray, shape (S, 2) or (S, modes)
         Each stop's in-stop heading correction of the joint refinement (rad, over
-        :func:`turn_basis`; zeros without it), already in ``stops``' poses and ``trajectory``.
+        :func:`turn_basis`; zeros without it), or with ``bundle_adjust`` of the bundle
+        adjustment (over :func:`~fusion_center.mapping.stop_bundle.drift_basis`, whose first
+        two terms are :func:`turn_basis`), already in ``stops``' poses and ``trajectory``.
     n_registered : int
         Accepted registrations in the graph. 0: the path is the odometry with the turn
         closure alone (no stop had reflectors to register, e.g. no turns on the spot).
@@ -1351,6 +1367,8 @@ class StopGraphPathEstimator:
     config : StopGraphConfig
     closure : TurnClosureConfig, optional
         Turn closure settings; default: its own with the config's slip noise.
+    bundle : StopBundleConfig, optional
+        Settings of the bundle adjustment (``StopGraphConfig.bundle_adjust``).
     """
 
     def __init__(
@@ -1358,6 +1376,7 @@ class StopGraphPathEstimator:
         antennas: npt.ArrayLike,
         config: StopGraphConfig | None = None,
         closure: TurnClosureConfig | None = None,
+        bundle: StopBundleConfig | None = None,
     ) -> None:
         ant = np.asarray(antennas, float)
         if ant.shape != (3, 2) or not np.all(np.isfinite(ant)):
@@ -1377,6 +1396,7 @@ class StopGraphPathEstimator:
         self.point_bias = 0.71 * float(np.mean(np.sum((ant[1:] - ant[0]) ** 2, 1)))
         self.point_bias *= float(cfg.point_scatterers)
         self.registration = ReflectorRegistration(cfg, self.point_bias)
+        self.bundle = bundle or StopBundleConfig()
 
     def odometry_edge(
         self, log: ScanLog, a: StopScan, b: StopScan
@@ -1412,6 +1432,41 @@ class StopGraphPathEstimator:
             pose = compose_poses(pose[None], inc)[0]
         pose[2] = float(_wrap(pose[2]))
         return pose, cov
+
+    def _bundle_adjust(
+        self,
+        log: ScanLog,
+        stops: list[StopScan],
+        poses: FloatArray,
+        coef: FloatArray,
+        odo: list[tuple[FloatArray, FloatArray]],
+    ) -> tuple[FloatArray, FloatArray]:
+        """Stop poses and in-stop drift coefficients (S, modes) of the bundle adjustment
+        over the echo pairs (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`),
+        started from the refinement's (its two coefficients are the first two modes). The
+        drift prior: each turn's end error (``end_sigma``) and the bridge of its odometry's
+        random walk (``odometry_sigma``; ``end_sigma`` when unknown)."""
+        modes = self.bundle.modes
+        init = np.zeros((len(stops), modes))
+        k = min(modes, coef.shape[1])
+        init[:, :k] = coef[:, :k]
+        end = np.array([st.end_sigma for st in stops])
+        walk = np.array([st.odometry_sigma for st in stops])
+        walk = np.where(np.isfinite(walk), walk, end)
+        res = adjust_stop_bundle(
+            log.pairs,
+            log.groups,
+            [(st.start, st.end) for st in stops],
+            [st.poses for st in stops],
+            [st.phase for st in stops],
+            poses,
+            odo,
+            drift_prior(end, walk, modes),
+            self.antennas,
+            self.bundle,
+            initial=init,
+        )
+        return res.poses, res.coefficients
 
     def estimate(self, log: ScanLog) -> StopGraphResult:
         """Stop poses and the path of every acquisition of ``log`` (see the module)."""
@@ -1475,20 +1530,27 @@ class StopGraphPathEstimator:
                 break
             poses, wt = graph.solve(poses)
         coef = np.zeros((n, 2))
+        # the odometry edges from each turn's end without its end heading noise (the
+        # refinements estimate that end)
+        odo = [
+            self.odometry_edge(log, replace(stops[i], end_sigma=0.0), stops[i + 1])
+            for i in range(n - 1)
+            if (cfg.refine_turns or cfg.bundle_adjust) and n > 1
+        ]
         if cfg.refine_turns and n > 1:
-            odo = [
-                self.odometry_edge(log, replace(stops[i], end_sigma=0.0), stops[i + 1])
-                for i in range(n - 1)
-            ]
             poses, coef, _ = refine_turns(
                 stops, graph.edges, wt, poses, odo, cfg, point_bias=self.point_bias
             )
-            stops = [
-                replace(
-                    st, poses=st.poses + np.c_[0.0, 0.0, 1.0] * (turn_basis(st.phase) @ c)[:, None]
-                )
-                for st, c in zip(stops, coef, strict=True)
-            ]
+        if cfg.bundle_adjust and n > 1:
+            poses, coef = self._bundle_adjust(log, stops, poses, coef, odo)
+        modes = coef.shape[1]
+        stops = [
+            replace(
+                st,
+                poses=st.poses + np.c_[0.0, 0.0, 1.0] * (drift_basis(st.phase, modes) @ c)[:, None],
+            )
+            for st, c in zip(stops, coef, strict=True)
+        ]
         traj = np.zeros((log.t.size, 4))
         traj[:, 0] = log.t
         for st, p in zip(stops, poses, strict=True):
@@ -1536,6 +1598,7 @@ __all__: Sequence[str] = (
     "StopGraphResult",
     "StopPoseGraph",
     "StopScan",
+    "images_seen_from",
     "predicted_images",
     "refine_turns",
     "relative_covariance",

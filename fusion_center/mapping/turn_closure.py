@@ -206,7 +206,7 @@ class EchoBearingTurnCloser:
         rho = np.hypot(u[:, 0], u[:, 1])
         world = phi[k] + beta
         sig_b = np.sqrt(2.0) * cfg.range_sigma / (self.baseline * np.maximum(np.cos(beta), 0.3))
-        cluster = self._reflectors(gid, rho, world)
+        cluster = self.reflectors(gid, rho, world)
         # links across the wrap: a reflector seen in the first and in the last third of
         # the turn (by odometry heading), with enough pairs on each side
         third = abs(phi[-1]) / 3.0
@@ -225,8 +225,21 @@ class EchoBearingTurnCloser:
             return TurnClosure(np.zeros(n), np.inf, links)
         return TurnClosure(e, end_sigma, links, rms_sigma)
 
-    def _reflectors(self, gid: npt.NDArray, rho: FloatArray, world: FloatArray) -> npt.NDArray:
-        """Reflector index of every pair: echo tracks joined by image distance and bearing."""
+    def reflectors(self, gid: npt.NDArray, rho: FloatArray, world: FloatArray) -> npt.NDArray:
+        """Reflector index (0 .. R-1) of every pair of one turn: its echo tracks joined when
+        their mean image distances (m) lie within ``link_range`` and their mean world
+        bearings (rad) within ``link_bearing``, by complete linkage (every two tracks of a
+        reflector within both gates; the closest pairs first).
+
+        Parameters
+        ----------
+        gid : ndarray of int, shape (m,)
+            Echo-track id of every pair.
+        rho : ndarray, shape (m,)
+            Distance of every pair's image point ``T'`` from the transmitter, m.
+        world : ndarray, shape (m,)
+            World bearing of every pair's image (heading plus the bearing in the array), rad.
+        """
         cfg = self.config
         tracks, inv = np.unique(gid, return_inverse=True)
         t = tracks.size

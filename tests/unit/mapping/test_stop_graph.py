@@ -15,6 +15,7 @@ from fusion_center.mapping.stop_graph import (
     StopGraphPathEstimator,
     StopPoseGraph,
     StopScan,
+    images_seen_from,
     predicted_images,
     refine_turns,
     relative_pose,
@@ -529,3 +530,20 @@ def test_point_bias_predicts_a_point_scatterers_image() -> None:
     assert exact.shape == (3, 2) and plain.shape == (2, 2)
     assert np.linalg.norm(exact[2] - ib) < 0.003, exact[2] - ib
     assert np.linalg.norm(plain[1] - ib) > 0.01, plain[1] - ib
+
+
+def test_images_seen_from_is_predicted_images_one_hypothesis_at_a_time() -> None:
+    """One image prediction for the registration and the refinement: ``images_seen_from``
+    per reflector and pose gives ``predicted_images``' blocks (rotated into B's frame), with
+    a wall seen from behind NaN in both."""
+    rng = np.random.default_rng(4)
+    images = rng.normal(0.0, 2.0, (6, 2))
+    pose = np.array([0.4, -0.3, 0.7])
+    pred = predicted_images(images, pose, 0.18)[0]
+    wall, point, scat = images_seen_from(images, np.broadcast_to(pose[:2], (6, 2)), 0.18)
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rot = np.array([[c, s], [-s, c]])
+    np.testing.assert_allclose(pred, np.vstack([wall, point, scat]) @ rot.T)
+    behind = images_seen_from(np.array([[2.0, 0.0]]), np.array([[1.5, 0.0]]))[0]
+    assert np.all(np.isnan(behind))
+    assert images_seen_from(images, np.zeros((6, 2)))[2] is None

@@ -434,3 +434,16 @@ def test_a_filter_holding_across_stops_gets_each_acquisition_out_once(
         ts = [(g.t, g.provisional) for g in out]
         assert ts.index((t, True)) < ts.index((t, False))
     assert mapper._stop == [] and mapper._pending == []
+
+
+def test_reflectors_join_tracks_within_both_gates_only() -> None:
+    """Tracks 0 and 1 (same distance and bearing) are one reflector; track 2 at the same
+    bearing 0.3 m further and track 3 at the same distance 20 degrees away are their own;
+    chaining would not join track 4 (within both gates of track 1 only) to 0 and 1."""
+    closer = EchoBearingTurnCloser(np.array([[0.0, 0.5], [0.0, -0.5]]))
+    gid = np.array([0, 0, 1, 1, 2, 3, 4])
+    rho = np.array([2.0, 2.0, 2.02, 2.02, 2.3, 2.0, 2.11])
+    world = np.radians([10.0, 10.0, 11.0, 11.0, 10.0, 30.0, 17.0])
+    label = closer.reflectors(gid, rho, world)
+    assert label[0] == label[2]
+    assert len({label[0], label[4], label[5], label[6]}) == 4

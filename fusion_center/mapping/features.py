@@ -353,6 +353,7 @@ def close_outline(
     clearance: float = 0.3,
     witness_range: float = 5.0,
     witness_gap: float = 0.3,
+    witness_hide: float = 0.3,
 ) -> SlamMap:
     """Close the outline: extend mapped walls that meet to their intersection (the corner
     the room must have there) and add the concave corners this implies.
@@ -374,9 +375,11 @@ def close_outline(
     * no robot position saw an extension's line at normal incidence and heard nothing
       there: a position (on the free side, within ``witness_range``) whose foot of the
       perpendicular lies on the extension more than ``witness_gap`` past the wall's mapped
-      end, with no mapped wall in between or at that foot, would have received the
-      specular echo (Fig. 19) of the wall had it been there, so the gap is an opening (a
-      doorway, the space between an object and a wall);
+      end, with no mapped wall in between or at that foot and no mapped corner or point
+      within ``witness_hide`` of its line of sight (an object in front of the wall whose
+      face was not mapped: a cabinet's edges), would have received the specular echo
+      (Fig. 19) of the wall had it been there, so the gap is an opening (a doorway, the
+      space between an object and a wall);
     * no mapped wall lies between ``X`` and the poses the two walls were seen from (two
       multipath ghosts beyond a room wall can meet at right angles).
 
@@ -417,6 +420,9 @@ def close_outline(
     witness_gap : float
         Feet of the perpendicular closer than this to the mapped end do not count, m
         (default 0.3: the end of a wall's observed extent is where such feet stop).
+    witness_hide : float
+        A mapped corner or point this close to a position's line of sight to the foot hides
+        the foot from it, m (default 0.3).
 
     Returns
     -------
@@ -437,6 +443,7 @@ def close_outline(
         ("clearance", clearance, clearance >= 0.0),
         ("witness_range", witness_range, witness_range >= 0.0),
         ("witness_gap", witness_gap, witness_gap >= 0.0),
+        ("witness_hide", witness_hide, witness_hide >= 0.0),
     ):
         if not ok_:  # NaN fails too
             raise ValueError(f"close_outline: {name} out of range (got {value})")
@@ -534,14 +541,20 @@ def close_outline(
     seen = outside[c] & (t > witness_gap) & (t < span_len[c]) & (s > 0.0) & (s < witness_range)
     c, k, foot = c[seen], k[seen], xy[k[seen]] - s[seen, None] * nf[w_ext[c[seen]]]
     eye_to = foot + (xy[k] - foot) * (0.05 / np.maximum(s[seen], 0.05))[:, None]
+    # mapped corners and points (edges, objects' sides seen end-on) near the line of sight
+    # or the foot: an object in the way or an echo from there
+    echoes = np.vstack([mapped_corners, np.asarray(the_map.points, float).reshape(-1, 2)])
     hidden = np.zeros(len(c), bool)
     for b in range(0, len(c), 4096):  # blocks of (extension, position) pairs x walls
-        cb, kb = c[b : b + 4096], k[b : b + 4096]
+        cb, kb, fb = c[b : b + 4096], k[b : b + 4096], foot[b : b + 4096]
         cross = _segments_cross(xy[kb, None], eye_to[b : b + 4096, None], p[None], q[None])
-        there = _point_segment_distance(foot[b : b + 4096, None], p[None], q[None]) < 0.1
+        there = _point_segment_distance(fb[:, None], p[None], q[None]) < 0.1
         mine = np.arange(len(walls))[None] == own[cb, 0, None]
         mine |= np.arange(len(walls))[None] == own[cb, 1, None]
         hidden[b : b + 4096] = ((cross | there) & ~mine).any(1)
+        if len(echoes):
+            near = _point_segment_distance(echoes[None], xy[kb, None], fb[:, None]) < witness_hide
+            hidden[b : b + 4096] |= near.any(1)
     np.logical_or.at(blocked, c, ~hidden)
     blocked = blocked[: ii.size] | blocked[ii.size :]
     cost = np.maximum(beyond[ii, jj], 0.0) + np.maximum(beyond[jj, ii], 0.0)

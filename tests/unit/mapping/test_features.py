@@ -143,6 +143,13 @@ def test_no_wall_through_a_doorway_the_robot_faced() -> None:
     walls = [[0.5, 0, 4.5, 0], [6, 1, 6, 3], [4.8, 1.0, 5.2, 1.4]]
     _, c = _closed(walls, [[3, 2], [5, 2]])
     np.testing.assert_allclose(c.walls[:2], [[0.5, 0, 6, 0], [6, 0, 6, 3]], atol=1e-12)
+    # so does a mapped point (an object's edge: a cabinet in front of the wall, its face not
+    # mapped) within 0.3 m of the line of sight
+    m = SlamMap(
+        walls=np.array([[0.5, 0, 4.5, 0], [6, 1, 6, 3]], float), points=np.array([[5.2, 0.8]])
+    )
+    c = close_outline(m, np.array([[3.0, 2], [5, 2]]))
+    np.testing.assert_allclose(c.walls, [[0.5, 0, 6, 0], [6, 0, 6, 3]], atol=1e-12)
 
 
 def test_no_wall_between_an_object_and_the_room_wall() -> None:

@@ -407,7 +407,8 @@ def close_outline(
     reach : float
         Largest extension of a wall beyond its mapped end, m (default 2.5).
     overshoot : float
-        Largest trim of a wall whose end lies past ``X``, m (default 0.3).
+        Largest trim of a wall whose end lies past ``X``, m (default 0.3); walls no longer
+        than twice this are not trimmed.
     min_angle : float
         Smallest angle between the two lines, rad (default 75 degrees).
     confirm : float
@@ -478,6 +479,8 @@ def close_outline(
     d = np.where(end[..., None], u[:, None, :], -u[:, None, :])  # wall i's way to X
     approach = np.einsum("ijk,jk->ij", d, nf)  # < 0: i comes from j's free side
     ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= reach) & (beyond >= -overshoot)
+    # a trim only on walls longer than two trims: two would leave a few centimetres of wall
+    ok &= (beyond >= 0.0) | (length[:, None] > 2.0 * overshoot)
     ok &= ok.T
     concave = (approach < 0) & (approach.T < 0)
     convex = (approach > 0) & (approach.T > 0)

@@ -227,3 +227,12 @@ def test_a_wall_ending_on_the_extended_end_does_not_block() -> None:
     walls = [[1, 0, 4, 0], [5, 1, 5, 3], [4.0001, 0.0001, 4.0001, -2]]
     _, c = _closed(walls, [[2, 1], [4, 1], [4, 2]])
     np.testing.assert_allclose(c.walls[:2], [[1, 0, 5, 0], [5, 0, 5, 3]], atol=1e-12)
+
+
+def test_a_short_wall_is_not_trimmed() -> None:
+    # a face 0.55 m long (shorter than two trims of 0.3 m) whose ends both overshoot the
+    # walls x = 0 and x = 0.45 by 0.05 m (review_8s L6: two trims of a short wall leave a few
+    # centimetres); its closures with them would trim it, so it stays as mapped
+    walls = [[-0.05, 0, 0.5, 0], [0, 1, 0, 3], [0.45, 1, 0.45, 3]]
+    m, c = _closed(walls, [[0.225, 2]])
+    np.testing.assert_array_equal(c.walls[0], m.walls[0])

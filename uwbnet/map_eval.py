@@ -11,8 +11,15 @@ Figures (metres, degrees):
   ``orientation`` (angle between them); ``unmatched`` counts mapped walls that match no face
   (ghosts: multipath, back faces of thick walls beyond 0.5 m) and ``outline_coverage`` is the
   fraction of the room outline's length covered by matched walls.
+  ``unsupported_m`` is the length of mapped wall farther than 0.2 m from every true face
+  (walls invented through openings, or placed off by the path's error).
 * corners: concave corners of the truth (room corners, object sides meeting a room wall); for
-  each, the nearest mapped corner within 0.5 m.
+  each, the nearest mapped corner within 0.5 m; ``false`` counts the mapped corners farther
+  than 0.5 m from every true corner.
+* ``walls.unsupported_aligned_m`` and ``corners.false_aligned`` (with a trajectory and true
+  poses) are the same after the best rigid fit of the path to the truth is applied to the map:
+  what is left besides one rotation and shift of the whole map, e.g. a heading error made at
+  the first stop.
 * points: convex edges of the objects (their vertical edges away from the room walls); for each
   object, the nearest mapped point to its outline (``found`` within 15 cm).
 * trajectory: RMSE of the position and of the heading over all acquisitions, and the mean
@@ -83,6 +90,42 @@ def _seg_point_dist(seg: np.ndarray, p: np.ndarray) -> np.ndarray:
     t = np.clip(np.einsum("kwi,wi->kw", p[:, None, :] - a[None], e) / np.sum(e * e, 1), 0, 1)
     q = a[None] + t[..., None] * e[None]
     return np.linalg.norm(q - p[:, None, :], axis=-1)
+
+
+def _unsupported_length(walls: np.ndarray, faces: np.ndarray, tol: float = 0.2) -> float:
+    """Length (m) of the segments ``walls`` (w, 4) farther than ``tol`` from every segment
+    of ``faces``, sampled every 2 cm."""
+    if not len(walls):
+        return 0.0
+    length = np.linalg.norm(walls[:, 2:] - walls[:, :2], axis=1)
+    n = np.maximum(2, np.ceil(length / 0.02).astype(int))
+    which = np.repeat(np.arange(len(walls)), n)
+    frac = np.concatenate([np.linspace(0.0, 1.0, k) for k in n])  # a loop over walls
+    pts = walls[which, :2] + frac[:, None] * (walls[which, 2:] - walls[which, :2])
+    far = _seg_point_dist(faces, pts).min(1) > tol
+    return float(np.sum(np.bincount(which, far, len(walls)) / n * length))
+
+
+def _rigid_fit(traj: np.ndarray, truth_traj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The best rigid fit (Kabsch) of the ``[t, x, y, yaw]`` path to the true one at the same
+    times: rotation matrix ``r`` and shift ``s`` with ``x @ r + s`` the fitted positions."""
+    idx = np.clip(np.searchsorted(truth_traj[:, 0], traj[:, 0] - 1e-9), 0, len(truth_traj) - 1)
+    a, b = traj[:, 1:3], truth_traj[idx, 1:3]
+    ca, cb = a - a.mean(0), b - b.mean(0)
+    h = ca.T @ cb
+    rot = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = math.cos(rot), math.sin(rot)
+    r = np.array([[c, s], [-s, c]])
+    return r, b.mean(0) - a.mean(0) @ r
+
+
+def _false_corners(mapped: np.ndarray, true: np.ndarray, gate: float = 0.5) -> int:
+    """Mapped corners farther than ``gate`` (m) from every true corner."""
+    if not len(mapped):
+        return 0
+    if not len(true):
+        return len(mapped)
+    return int((np.linalg.norm(mapped[:, None] - true[None], axis=-1).min(1) > gate).sum())
 
 
 def _stats(x: list[float]) -> dict[str, float | int]:
@@ -176,6 +219,14 @@ def evaluate_map(
             if d < 0.5:
                 c_err.append(float(d))
     out["corners"] = {"true": len(corners), "mapped": len(mc), **_stats(c_err)}
+    out["walls"]["unsupported_m"] = round(_unsupported_length(walls, faces), 2)
+    out["corners"]["false"] = _false_corners(mc, corners)
+    traj = np.array(doc["trajectory"], float).reshape(-1, 4)
+    if truth_traj is not None and len(traj):
+        r, shift = _rigid_fit(traj, truth_traj)
+        fitted = np.hstack([walls[:, :2] @ r + shift, walls[:, 2:] @ r + shift])
+        out["walls"]["unsupported_aligned_m"] = round(_unsupported_length(fitted, faces), 2)
+        out["corners"]["false_aligned"] = _false_corners(mc @ r + shift, corners)
     mp = np.array(doc["points"], float).reshape(-1, 2)
     e_err = []
     for p in edges:
@@ -195,7 +246,6 @@ def evaluate_map(
         "found_within_0.15": int(sum(v <= 0.15 for v in per_obj.values())),
         "total": len(per_obj),
     }
-    traj = np.array(doc["trajectory"], float).reshape(-1, 4)
     if truth_traj is not None and len(traj):
         out["trajectory"] = trajectory_errors(traj, truth_traj)
         if dead_reckoning is not None and len(dead_reckoning):

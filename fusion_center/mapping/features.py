@@ -250,49 +250,96 @@ def _cross2(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def _segments_cross(p: FloatArray, q: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
-    """Whether segments ``p-q`` (c, 2) properly cross segments ``a-b`` (m, 2): (c, m)."""
-    p, q = p[:, None, :], q[:, None, :]
-    a, b = a[None], b[None]
+    """Whether segments ``p-q`` properly cross segments ``a-b`` (broadcast, ``[..., 2]``)."""
     return (_cross2(q - p, a - p) * _cross2(q - p, b - p) < 0) & (
         _cross2(b - a, p - a) * _cross2(b - a, q - a) < 0
     )
 
 
 def _point_segment_distance(x: FloatArray, p: FloatArray, q: FloatArray) -> FloatArray:
-    """Distance of points ``x`` (m, 2) from segments ``p-q`` (c, 2): (c, m)."""
+    """Distance of points ``x`` from segments ``p-q`` (broadcast, ``[..., 2]``)."""
     e = q - p
-    ee = np.maximum(np.sum(e * e, 1), 1e-12)
-    t = np.clip(np.einsum("cmi,ci->cm", x[None] - p[:, None], e) / ee[:, None], 0.0, 1.0)
-    return np.linalg.norm(p[:, None] + t[..., None] * e[:, None] - x[None], axis=-1)
+    ee = np.maximum(np.sum(e * e, -1), 1e-12)
+    t = np.clip(np.sum((x - p) * e, -1) / ee, 0.0, 1.0)
+    return np.linalg.norm(p + t[..., None] * e - x, axis=-1)
+
+
+def _near_pairs(
+    points: FloatArray, centres: FloatArray, radii: FloatArray
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Index pairs ``(centre, point)`` with the point within ``radii[centre]`` of the centre
+    (k-d tree, scipy.spatial.cKDTree): the tests below then cost the pairs in range, not
+    centres x points."""
+    from scipy.spatial import cKDTree
+
+    if len(points) == 0 or len(centres) == 0:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    found = cKDTree(points).query_ball_point(centres, radii, return_sorted=False)
+    counts = np.fromiter((len(f) for f in found), np.intp, len(found))
+    flat = np.fromiter((k for f in found for k in f), np.intp, int(counts.sum()))
+    return np.repeat(np.arange(len(centres)), counts), flat
+
+
+def _distinct_positions(xy: FloatArray, cell: float = 0.02) -> FloatArray:
+    """One robot position per ``cell`` (m) square: a stop's turn on the spot is one position.
+    The first pose of each cell is kept (not the cell's centre), so distances stay exact."""
+    _, first = np.unique(np.floor(xy / cell).astype(np.int64), axis=0, return_index=True)
+    return xy[np.sort(first)]
 
 
 def free_side(
-    walls: FloatArray, path: FloatArray, margin: float = 0.5
+    walls: FloatArray, path: FloatArray, body: float = 0.2
 ) -> tuple[FloatArray, npt.NDArray[np.intp]]:
     """Unit normals of wall segments pointing to the side the robot saw them from, and the
     pose it saw each from.
 
-    A wall's echo comes from the foot of the perpendicular from the array, so the poses that
-    saw it project onto its extent (within ``margin``, m); the nearest of those (else the
-    nearest pose) is taken as the observer and gives the side. ``walls`` (w, 4)
-    ``[x1, y1, x2, y2]`` and ``path`` (k, 2) robot positions, one frame (m). Returns the
-    normals (w, 2; a zero row where the observer lies on the wall's line: side undecided)
-    and the observers' indices into ``path`` (w,).
+    A wall's echo comes from the foot of the perpendicular from the array (the specular
+    point, Fig. 19 of the CoLOR chapter), so the poses that saw it project onto its extent;
+    the nearest of those, farther than ``body`` from its line, is taken as the observer and
+    gives the side. Poses beyond the wall's ends (a robot passing its end on the way through a
+    doorway) and poses on its line (within the robot's body of it) do not vote. A wall no pose
+    projects onto takes the nearest pose off its line.
+
+    Parameters
+    ----------
+    walls : ndarray, shape (w, 4)
+        Segments ``[x1, y1, x2, y2]``, m.
+    path : ndarray, shape (k, 2)
+        Robot positions, m, the walls' frame.
+    body : float
+        Poses closer than this to a wall's line (m; the robot's radius) do not decide its
+        side.
+
+    Returns
+    -------
+    normals : ndarray, shape (w, 2)
+        Unit normals towards the observer; a zero row where no pose is off the wall's line
+        (side undecided).
+    observer : ndarray of int, shape (w,)
+        Index into ``path`` of each wall's observer (0 where undecided).
     """
     p, q = walls[:, :2], walls[:, 2:]
     length = np.maximum(np.linalg.norm(q - p, axis=1), 1e-12)
     u = (q - p) / length[:, None]
     n = np.stack([-u[:, 1], u[:, 0]], -1)
-    rel = path[None, :, :] - p[:, None, :]  # (w, k, 2)
-    t = np.einsum("wki,wi->wk", rel, u)
-    s = np.einsum("wki,wi->wk", rel, n)
-    along = (t >= -margin) & (t <= length[:, None] + margin)
-    dist = np.hypot(np.maximum(np.maximum(-t, t - length[:, None]), 0.0), s)
-    key = np.where(along, np.abs(s), np.inf)
-    # walls no pose projects onto: the pose nearest the segment
-    seen_from = np.where(np.isfinite(key.min(1)), key.argmin(1), dist.argmin(1))
-    side = np.sign(s[np.arange(len(walls)), seen_from])
-    return n * side[:, None], seen_from
+    normals = np.zeros_like(p)
+    seen_from = np.zeros(len(walls), np.intp)
+    for b in range(0, len(walls), 32):  # blocks of walls: memory 32 x k
+        w = slice(b, b + 32)
+        rel = path[None, :, :] - p[w, None, :]
+        t = np.einsum("wki,wi->wk", rel, u[w])
+        s = np.einsum("wki,wi->wk", rel, n[w])
+        off = np.abs(s) >= body
+        along = off & (t >= 0.0) & (t <= length[w, None])
+        dist = np.hypot(np.maximum(np.maximum(-t, t - length[w, None]), 0.0), s)
+        key = np.where(along, np.abs(s), np.inf)
+        fallback = np.where(off, dist, np.inf)
+        obs = np.where(np.isfinite(key.min(1)), key.argmin(1), fallback.argmin(1))
+        decided = np.isfinite(fallback.min(1))
+        side = np.sign(s[np.arange(len(obs)), obs]) * decided
+        normals[w] = n[w] * side[:, None]
+        seen_from[w] = np.where(decided, obs, 0)
+    return normals, seen_from
 
 
 def close_outline(
@@ -304,6 +351,9 @@ def close_outline(
     min_angle: float = np.radians(75.0),
     confirm: float = 0.5,
     clearance: float = 0.3,
+    witness_range: float = 5.0,
+    witness_gap: float = 0.3,
+    witness_hide: float = 0.3,
 ) -> SlamMap:
     """Close the outline: extend mapped walls that meet to their intersection (the corner
     the room must have there) and add the concave corners this implies.
@@ -312,46 +362,109 @@ def close_outline(
     perpendiculars (the specular points), so the mapped extents stop short of the corners.
     Two mapped walls ``i``, ``j`` are closed at the intersection ``X`` of their lines when
 
-    * their lines meet at ``min_angle`` (rad) or more (at 60 degrees a ghost face at 71
-      degrees closed with a box's face on room_pillar);
-    * ``X`` lies beyond (or at most ``overshoot`` m inside) one end of each, at most
-      ``reach`` m beyond it;
+    * their lines meet at ``min_angle`` or more (at 60 degrees a ghost face at 71 degrees
+      closed with a box's face on room_pillar);
+    * ``X`` lies beyond (or at most ``overshoot`` inside) one end of each, at most ``reach``
+      beyond it;
     * each wall approaches ``X`` from the same side of the other as the robot saw that one
       from (:func:`free_side`): both from the free side is a concave (room) corner, both
       from behind a convex one (the inner corner of an L, a pillar's edge); mixed is no
       corner;
     * neither extension crosses the robot's path or another mapped wall, nor passes within
-      ``clearance`` m of a robot position (the robot drove or stood there);
+      ``clearance`` of a robot position (the robot drove or stood there);
+    * no robot position saw an extension's line at normal incidence and heard nothing
+      there: a position (on the free side, within ``witness_range``) whose foot of the
+      perpendicular lies on the extension more than ``witness_gap`` past the wall's mapped
+      end, with no mapped wall in between or at that foot and no mapped corner or point
+      within ``witness_hide`` of its line of sight (an object in front of the wall whose
+      face was not mapped: a cabinet's edges), would have received the specular echo
+      (Fig. 19) of the wall had it been there, so the gap is an opening (a doorway, the
+      space between an object and a wall);
     * no mapped wall lies between ``X`` and the poses the two walls were seen from (two
       multipath ghosts beyond a room wall can meet at right angles).
 
     Each wall end takes at most one closure, the shortest extensions first (those with a
-    mapped corner within ``confirm`` m of ``X``, the double reflection that confirms it,
+    mapped corner within ``confirm`` of ``X``, the double reflection that confirms it,
     before all others). The ends move to ``X`` (extended, or trimmed where they overshot).
     A concave closure adds ``X`` to the corners unless a mapped corner lies within
-    ``confirm`` m; a convex one adds nothing (an edge, which echoes as a point).
+    ``confirm``; a convex one adds nothing (an edge, which echoes as a point).
+
+    The robot's positions are first reduced to one per 2 cm square (a stop's turn on the
+    spot is one position) and the position tests run on the pairs within range (k-d tree),
+    so the cost grows with candidates x positions in range, not x poses.
 
     Beyond the chapter (geometric post-processing of the map, as :func:`build_map`'s wall
-    extension); docs/mapping.md "Closing the outline".
+    extension; the negative-evidence test is the free-space reasoning of occupancy mapping,
+    Thrun, Burgard and Fox, Probabilistic Robotics, ch. 9); docs/mapping.md "Closing the
+    outline".
 
     Parameters
     ----------
     the_map : SlamMap
+        The map to close (walls, corners, points in one frame, m).
     path : array_like, shape (k, 2)
         Robot positions in the map's frame (m), in driving order.
+    reach : float
+        Largest extension of a wall beyond its mapped end, m (default 2.5).
+    overshoot : float
+        Largest trim of a wall whose end lies past ``X``, m (default 0.3); walls no longer
+        than twice this are not trimmed.
+    min_angle : float
+        Smallest angle between the two lines, rad (default 75 degrees).
+    confirm : float
+        A mapped corner within this of ``X`` confirms the closure, m (default 0.5).
+    clearance : float
+        Smallest distance of an extension from every robot position, m (default 0.3).
+    witness_range : float
+        Farthest a robot position sees a wall at normal incidence, m (default 5, the
+        mapper's bistatic ``max_range`` of 10 m halved).
+    witness_gap : float
+        Feet of the perpendicular closer than this to the mapped end do not count, m
+        (default 0.3: the end of a wall's observed extent is where such feet stop).
+    witness_hide : float
+        A mapped corner or point this close to a position's line of sight to the foot hides
+        the foot from it, m (default 0.3).
 
     Returns
     -------
     SlamMap
         Walls with moved ends (same order), corners with the implied ones appended, points
         unchanged.
+
+    Raises
+    ------
+    ValueError
+        A parameter out of range or a path or walls not of shape (k, 2) / (w, 4).
     """
-    if not (reach > 0.0 and overshoot >= 0.0 and 0.0 < min_angle <= np.pi / 2):
-        raise ValueError("close_outline needs reach > 0, overshoot >= 0, 0 < min_angle <= pi/2")
-    walls = np.asarray(the_map.walls, float).reshape(-1, 4)
-    xy = np.asarray(path, float).reshape(-1, 2)
+    for name, value, ok_ in (
+        ("reach", reach, reach > 0.0),
+        ("overshoot", overshoot, overshoot >= 0.0),
+        ("min_angle", min_angle, 0.0 < min_angle <= np.pi / 2),
+        ("confirm", confirm, confirm >= 0.0),
+        ("clearance", clearance, clearance >= 0.0),
+        ("witness_range", witness_range, witness_range >= 0.0),
+        ("witness_gap", witness_gap, witness_gap >= 0.0),
+        ("witness_hide", witness_hide, witness_hide >= 0.0),
+    ):
+        if not ok_:  # NaN fails too
+            raise ValueError(f"close_outline: {name} out of range (got {value})")
+    walls = np.asarray(the_map.walls, float)
+    xy = np.asarray(path, float)
+    if walls.size == 0:
+        walls = walls.reshape(0, 4)
+    if xy.size == 0:
+        xy = xy.reshape(0, 2)
+    if walls.ndim != 2 or walls.shape[1] != 4:
+        raise ValueError(f"close_outline: walls must be (w, 4) segments, got {walls.shape}")
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"close_outline: path must be (k, 2) positions, got {xy.shape}")
+    xy = xy[np.isfinite(xy).all(1)]
     if len(walls) < 2 or len(xy) == 0:
         return the_map
+    # consecutive poses that moved (the path's segments), then one position per 2 cm square
+    moving = np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-3
+    a_path, b_path = xy[:-1][moving], xy[1:][moving]
+    xy = _distinct_positions(xy)
     p, q = walls[:, :2], walls[:, 2:]
     length = np.linalg.norm(q - p, axis=1)
     u = (q - p) / np.maximum(length, 1e-12)[:, None]
@@ -366,6 +479,8 @@ def close_outline(
     d = np.where(end[..., None], u[:, None, :], -u[:, None, :])  # wall i's way to X
     approach = np.einsum("ijk,jk->ij", d, nf)  # < 0: i comes from j's free side
     ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= reach) & (beyond >= -overshoot)
+    # a trim only on walls longer than two trims: two would leave a few centimetres of wall
+    ok &= (beyond >= 0.0) | (length[:, None] > 2.0 * overshoot)
     ok &= ok.T
     concave = (approach < 0) & (approach.T < 0)
     convex = (approach > 0) & (approach.T > 0)
@@ -390,15 +505,19 @@ def close_outline(
     span = stops - starts
     span_len = np.linalg.norm(span, axis=1)
     starts = starts + span * (np.minimum(0.05, span_len) / np.maximum(span_len, 1e-12))[:, None]
-    moving = np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-3
-    a_path, b_path = xy[:-1][moving], xy[1:][moving]
-    blocked = _segments_cross(starts, stops, a_path, b_path).any(1)
-    blocked |= (_point_segment_distance(xy, starts, stops) < clearance).any(1)
+    mid, half = 0.5 * (starts + stops), 0.5 * np.linalg.norm(stops - starts, axis=1)
+    blocked = np.zeros(len(starts), bool)
+    if len(a_path):
+        seg_half = 0.5 * np.linalg.norm(b_path - a_path, axis=1).max()
+        c, k = _near_pairs(0.5 * (a_path + b_path), mid, half + seg_half + 1e-9)
+        np.logical_or.at(blocked, c, _segments_cross(starts[c], stops[c], a_path[k], b_path[k]))
+    c, k = _near_pairs(xy, mid, half + clearance)
+    np.logical_or.at(blocked, c, _point_segment_distance(xy[k], starts[c], stops[c]) < clearance)
     # another mapped wall across an extension (its own two walls are not: they meet at X)
-    through = _segments_cross(starts, stops, p, q)
     pair = np.r_[np.arange(ii.size), np.arange(ii.size)]
-    through[pair, np.r_[ii, ii]] = False
-    through[pair, np.r_[jj, jj]] = False
+    own = np.c_[np.r_[ii, jj], np.r_[jj, ii]]  # (2c, 2): the extended wall, its partner
+    through = _segments_cross(starts[:, None], stops[:, None], p[None], q[None])
+    through[pair, own[:, 0]] = through[pair, own[:, 1]] = False
     blocked |= through.any(1)
     # X in sight of the poses that saw the two walls: a corner behind another mapped wall
     # is one of two ghosts (multipath images beyond a room wall) meeting
@@ -406,30 +525,60 @@ def close_outline(
     toward = stops - eyes
     # (ending 5 cm short of X: a third wall through X is not in the way)
     short = stops - 0.05 * toward / np.maximum(np.linalg.norm(toward, axis=1), 0.1)[:, None]
-    sight = _segments_cross(eyes, short, p, q)
-    sight[pair, np.r_[ii, ii]] = False
-    sight[pair, np.r_[jj, jj]] = False
+    sight = _segments_cross(eyes[:, None], short[:, None], p[None], q[None])
+    sight[pair, own[:, 0]] = sight[pair, own[:, 1]] = False
     blocked |= sight.any(1)
+    # negative evidence: a position whose specular point on the extension's line lies on the
+    # extension (past the mapped end by witness_gap), on the side the wall was seen from and
+    # within range, with nothing mapped in between or there, would have echoed the wall
+    w_ext = own[:, 0]
+    unit = span / np.maximum(span_len, 1e-12)[:, None]
+    # (only for the candidates still open: the pairs x walls below are the largest cost)
+    live = ~np.tile(blocked[: ii.size] | blocked[ii.size :], 2) & outside
+    c, k = _near_pairs(xy, mid, np.where(live, half + witness_range, 0.0))
+    keep = live[c]
+    c, k = c[keep], k[keep]
+    rel = xy[k] - (stops[c] - unit[c] * span_len[c, None])  # from the wall's mapped end
+    t = np.sum(rel * unit[c], 1)
+    s = np.sum(rel * nf[w_ext[c]], 1)  # > 0 on the side the wall was seen from
+    seen = outside[c] & (t > witness_gap) & (t < span_len[c]) & (s > 0.0) & (s < witness_range)
+    c, k, foot = c[seen], k[seen], xy[k[seen]] - s[seen, None] * nf[w_ext[c[seen]]]
+    eye_to = foot + (xy[k] - foot) * (0.05 / np.maximum(s[seen], 0.05))[:, None]
+    # mapped corners and points (edges, objects' sides seen end-on) near the line of sight
+    # or the foot: an object in the way or an echo from there
+    echoes = np.vstack([mapped_corners, np.asarray(the_map.points, float).reshape(-1, 2)])
+    hidden = np.zeros(len(c), bool)
+    for b in range(0, len(c), 4096):  # blocks of (extension, position) pairs x walls
+        cb, kb, fb = c[b : b + 4096], k[b : b + 4096], foot[b : b + 4096]
+        cross = _segments_cross(xy[kb, None], eye_to[b : b + 4096, None], p[None], q[None])
+        there = _point_segment_distance(fb[:, None], p[None], q[None]) < 0.1
+        mine = np.arange(len(walls))[None] == own[cb, 0, None]
+        mine |= np.arange(len(walls))[None] == own[cb, 1, None]
+        hidden[b : b + 4096] = ((cross | there) & ~mine).any(1)
+        if len(echoes):
+            near = _point_segment_distance(echoes[None], xy[kb, None], fb[:, None]) < witness_hide
+            hidden[b : b + 4096] |= near.any(1)
+    np.logical_or.at(blocked, c, ~hidden)
     blocked = blocked[: ii.size] | blocked[ii.size :]
     cost = np.maximum(beyond[ii, jj], 0.0) + np.maximum(beyond[jj, ii], 0.0)
     order = np.lexsort((cost, ~near_corner))
     taken: set[tuple[int, bool]] = set()
     out = walls.copy()
     new_corners = []
-    for c in order:  # a handful of candidates
-        if blocked[c]:
+    for c_ in order:  # a handful of candidates
+        if blocked[c_]:
             continue
-        i, j = int(ii[c]), int(jj[c])
+        i, j = int(ii[c_]), int(jj[c_])
         ei, ej = (i, bool(end[i, j])), (j, bool(end[j, i]))
         if ei in taken or ej in taken:
             continue
         taken |= {ei, ej}
         for w, at_end in (ei, ej):
             if at_end:
-                out[w, 2:] = x[c]
+                out[w, 2:] = x[c_]
             else:
-                out[w, :2] = x[c]
-        if concave[i, j] and not near_corner[c]:
-            new_corners.append(x[c])
+                out[w, :2] = x[c_]
+        if concave[i, j] and not near_corner[c_]:
+            new_corners.append(x[c_])
     corners = np.vstack([mapped_corners, np.array(new_corners).reshape(-1, 2)])
     return SlamMap(walls=out, corners=corners, points=the_map.points)

@@ -100,6 +100,12 @@ def test_map_closes_the_outline(robot_recording: Path, tmp_path: Path) -> None:
     assert closed["walls"]["unmatched"] == open_["walls"]["unmatched"]
     assert closed["corners"]["n"] >= open_["corners"]["n"] + 1
     assert closed["corners"]["mean"] < 0.3
+    # every added corner is a true one (within 0.5 m once the path's rotation, 3.5 degrees
+    # here, is removed: in the first-pose frame the far one is 0.66 m off), and closing
+    # invents no wall (review_8s M4)
+    assert closed["corners"]["false_aligned"] == open_["corners"]["false_aligned"]
+    unsupported = closed["walls"]["unsupported_aligned_m"] - open_["walls"]["unsupported_aligned_m"]
+    assert unsupported <= 0.1
 
 
 def test_map_errors_are_one_line(robot_recording: Path, tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+import uwbnet.map_eval as me
 from uwbnet.map_cmd import compose
 from uwbnet.map_eval import trajectory_errors
 
@@ -89,3 +90,27 @@ def test_the_turn_drift_wraps_at_180_degrees_and_is_none_without_stops() -> None
     moved = drive.copy()
     moved[:, 3] += np.radians(0.5 * np.arange(20))
     assert trajectory_errors(moved, drive)["turn_drift_deg"] is None
+
+
+def test_unsupported_length_and_false_corners_with_and_without_the_path_fit() -> None:
+    # truth: the wall y = 0 (x 0..10) and its corner (10, 0); the map and the path are the
+    # truth rotated 3 degrees about the start, with a wall 1 m past the corner (invented)
+    faces = np.array([[0.0, 0, 10, 0], [10, 0, 10, 5]])
+    a = np.radians(3.0)
+    rot = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])  # x @ rot turns by a
+    walls = np.array([[0.0, 0, 11, 0]])
+    mapped = np.hstack([walls[:, :2] @ rot, walls[:, 2:] @ rot])
+    corner = np.array([[10.0, 0]]) @ rot  # 0.52 m off the true one
+    # 0.2 m off y = 0 from 3.82 m along, but the 0.4 m crossing x = 10 lies on the other face
+    assert abs(me._unsupported_length(mapped, faces) - (11 - 0.2 / np.sin(a) - 0.4)) < 0.05
+    assert me._false_corners(corner, np.array([[10.0, 0]])) == 1
+    t = np.linspace(0, 1, 50)
+    truth = np.column_stack([t, 10 * t, np.zeros_like(t), np.zeros_like(t)])
+    path = truth.copy()
+    path[:, 1:3] = truth[:, 1:3] @ rot
+    r, shift = me._rigid_fit(path, truth)
+    np.testing.assert_allclose(path[:, 1:3] @ r + shift, truth[:, 1:3], atol=1e-9)
+    fitted = np.hstack([mapped[:, :2] @ r + shift, mapped[:, 2:] @ r + shift])
+    # once the rotation is removed only the invented metre past the corner is unsupported
+    assert abs(me._unsupported_length(fitted, faces) - 0.8) < 0.05
+    assert me._false_corners(corner @ r + shift, np.array([[10.0, 0]])) == 0

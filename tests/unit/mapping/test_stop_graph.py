@@ -311,6 +311,8 @@ def test_bad_input_gives_one_line_value_errors() -> None:
         scan_front_end(frames, fs=1e9, t0=0.0, bandwidth=5e8)
     with pytest.raises(ValueError, match=r"^a pose graph needs at least one stop"):
         StopPoseGraph(0)
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.closure_link_scatter must be > 0"):
+        StopGraphConfig(closure_link_scatter=float("nan"))
     for msg in (
         str(_catch(lambda: StopGraphConfig(min_matched=0))),
         str(_catch(lambda: StopGraphConfig(min_explained=2.0))),
@@ -547,3 +549,10 @@ def test_images_seen_from_is_predicted_images_one_hypothesis_at_a_time() -> None
     behind = images_seen_from(np.array([[2.0, 0.0]]), np.array([[1.5, 0.0]]))[0]
     assert np.all(np.isnan(behind))
     assert images_seen_from(images, np.zeros((6, 2)))[2] is None
+
+
+def test_the_link_scatter_reaches_the_turn_closer() -> None:
+    """``closure_link_scatter`` is the stops' closer's ``link_scatter`` (off by default)."""
+    assert not np.isfinite(StopGraphPathEstimator(ANTENNAS).closer.config.link_scatter)
+    est = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(closure_link_scatter=0.1))
+    assert est.closer.config.link_scatter == 0.1

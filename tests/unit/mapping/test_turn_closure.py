@@ -112,6 +112,34 @@ def test_a_turn_with_one_closing_reflector_is_left_alone() -> None:
     assert np.isfinite(one.close(dyaw, pairs, ids).end_sigma)
 
 
+def test_issue_8_a_link_whose_bearing_sweeps_is_no_link() -> None:
+    # lab_skew seed 6's first stop: the turn closed on one "link" whose early side was an
+    # echo track sweeping 20 degrees in world bearing (no fixed image) at the range of a
+    # reflector seen late in the turn; the closure claimed 1.3 degrees and was 4 off.
+    # Here the one true link's early track (4.8 m) is replaced by such a sweep, centred 1.2
+    # degrees from the late side's bearing by the odometry (the true link needs 6.2)
+    true, dyaw, pairs, ids = _turn(357.0, seed=1, yaw0=np.pi)
+    rx = ANTENNAS[1:]
+    need = true[-1] - np.sum(dyaw[1:])
+    swept = [np.array(p, float) for p in pairs]
+    for i in range(17):
+        beta = np.radians(-5.0 + 1.5 * (i - 8)) - true[i]
+        image = 4.8 * np.array([np.cos(beta), np.sin(beta)])
+        swept[i][np.asarray(ids[i]) == 1] = np.linalg.norm(image - rx, axis=1)
+    loose = EchoBearingTurnCloser(rx, TurnClosureConfig(min_links=1))  # no scatter test
+    wrong = loose.close(dyaw, swept, ids)
+    assert wrong.links == 1 and abs(wrong.correction[-1] - need) > 5.0 * wrong.end_sigma
+    # a 6-degree gate on each side's bearing scatter refuses it
+    gate = np.radians(6.0)
+    closer = EchoBearingTurnCloser(rx, TurnClosureConfig(min_links=1, link_scatter=gate))
+    res = closer.close(dyaw, swept, ids)
+    assert res.links == 0 and not np.isfinite(res.end_sigma) and np.all(res.correction == 0.0)
+    # the true link (a fixed image, its sides' bearings scatter by a fraction of a degree)
+    # still closes the turn
+    good = closer.close(dyaw, pairs, ids)
+    assert good.links == 1 and abs(good.correction[-1] - need) < 3.0 * good.end_sigma
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -121,6 +149,8 @@ def test_a_turn_with_one_closing_reflector_is_left_alone() -> None:
         ({"min_links": 0}, "min_links must be an integer >= 1"),
         ({"iterations": 0}, "iterations must be an integer >= 1"),
         ({"max_correction": float("nan")}, "max_correction must be > 0"),
+        ({"link_scatter": 0.0}, "link_scatter must be > 0"),
+        ({"link_scatter": float("nan")}, "link_scatter must be > 0"),
     ],
 )
 def test_the_closure_settings_are_checked(kwargs: dict, message: str) -> None:

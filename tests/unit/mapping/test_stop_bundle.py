@@ -114,7 +114,7 @@ def _yaw_rms_deg(path: np.ndarray, truth: np.ndarray) -> float:
 def test_bundle_adjustment_recovers_stop_poses_and_in_stop_drift(modes: int) -> None:
     """The echo pairs of four walls, four corners and two point scatterers, seen from five
     stops, fix every acquisition's heading: from 1.1 degrees RMS (drift and stop poses off)
-    the adjustment comes within 0.25 degrees (0.04 with two modes, 0.08 with four), and the
+    the adjustment comes within 0.25 degrees (0.04 with two modes, 0.06 with four), and the
     stop positions within 1 cm (5 mm range noise over hundreds of pairs per stop)."""
     p = _problem(11, modes)
     start = _path(p, p["init"], np.zeros((len(p["ranges"]), modes)), modes)

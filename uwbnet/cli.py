@@ -323,6 +323,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         smooth=not args.no_smooth,
         localise=args.localise,
         close=not args.no_close,
+        bundle_adjust=args.bundle_adjust,
     )
     return _run_offline(args, "mapping", run)
 
@@ -835,6 +836,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="leave the walls' ends where their echoes put them (no closing of the outline: "
         "walls that meet extended to their corner)",
+    )
+    mp.add_argument(
+        "--bundle-adjust",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="the stop graph: adjust its path over every echo pair after the refinement "
+        "(default: StopGraphConfig's, off; see docs/mapping.md)",
     )
     mp.set_defaults(func=cmd_map)
 

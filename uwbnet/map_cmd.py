@@ -113,6 +113,7 @@ class MapStats:
     registrations: int = 0
     stops_registered: int = 0
     wall_gap: float | None = None
+    bundle_adjust: bool | None = None
     eval: dict[str, Any] | None = None
     eval_filter: dict[str, Any] | None = None
 
@@ -212,6 +213,7 @@ def _map_by_stops(
     truth: list[tuple[float, tuple[float, ...]]],
     dead: list[list[float]],
     auto: bool,
+    bundle_adjust: bool | None = None,
 ) -> tuple[Any, np.ndarray]:
     """Map and ``[t, x, y, yaw]`` path by the stop graph and the map along its path.
 
@@ -222,9 +224,14 @@ def _map_by_stops(
     of at least ``StopGraphConfig.min_stop_acquisitions``: a drive sampled in several steps
     makes short runs that are no stops) to another stop (the rest would be dead reckoning),
     or when the stop graph or the map along it fails (``ValueError``); ``stops`` gives that
-    failure as a :class:`MappingError`."""
+    failure as a :class:`MappingError`. ``bundle_adjust`` sets
+    ``StopGraphConfig.bundle_adjust`` (None: its default)."""
     from fusion_center.mapping.fixed_path import FixedPathConfig, map_fixed_path
-    from fusion_center.mapping.stop_graph import StopGraphPathEstimator, scan_front_end
+    from fusion_center.mapping.stop_graph import (
+        StopGraphConfig,
+        StopGraphPathEstimator,
+        scan_front_end,
+    )
 
     msgs = _robot_ir(path, robot, stats, progress, truth, dead)
     first = next(msgs, None)
@@ -254,7 +261,11 @@ def _map_by_stops(
     step = turning_step(scans.odometry)
     if auto and (why := stops_unsuited(step, None, None)) is not None:
         raise _NotStopsError(why)
-    estimator = StopGraphPathEstimator(antennas)
+    config = StopGraphConfig()
+    if bundle_adjust is not None:
+        config = dataclasses.replace(config, bundle_adjust=bool(bundle_adjust))
+    stats.bundle_adjust = config.bundle_adjust
+    estimator = StopGraphPathEstimator(antennas, config)
     try:
         res = estimator.estimate(scans)
     except ValueError as exc:
@@ -308,6 +319,7 @@ def map_recording(
     smooth: bool = True,
     localise: str = "auto",
     close: bool = True,
+    bundle_adjust: bool | None = None,
 ) -> MapStats:
     """Map a robot recording; write ``out`` (map.json) and optionally ``png``.
 
@@ -322,7 +334,9 @@ def map_recording(
     holds the map's errors (:func:`uwbnet.map_eval.evaluate_map`). With ``close``, mapped
     walls that meet are extended to their corner and the concave corners added
     (:func:`fusion_center.mapping.features.close_outline`, both localisers; the filter's own
-    map in ``eval_filter`` too). Outputs appear only when complete. Bad messages are counted
+    map in ``eval_filter`` too). ``bundle_adjust`` turns the stop graph's bundle adjustment
+    over the echo pairs on or off (``StopGraphConfig.bundle_adjust``; None: its default) and
+    is recorded with the stop fields. Outputs appear only when complete. Bad messages are counted
     in ``rejected`` and logged.
     """
     import time
@@ -345,7 +359,14 @@ def map_recording(
     if localise != "filter":
         try:
             the_map, path_arr = _map_by_stops(
-                path, robot, stats, progress, truth, dead, auto=localise == "auto"
+                path,
+                robot,
+                stats,
+                progress,
+                truth,
+                dead,
+                auto=localise == "auto",
+                bundle_adjust=bundle_adjust,
             )
             traj = [[float(v) for v in row] for row in path_arr]
             stats.updates = len(traj)
@@ -448,6 +469,7 @@ def map_recording(
             registrations=stats.registrations,
             stops_registered=stats.stops_registered,
             wall_gap=stats.wall_gap,
+            bundle_adjust=stats.bundle_adjust,
         )
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)

@@ -33,13 +33,14 @@ residual scale, at least ``range_sigma``), ``h`` the Fig. 19 model of the
 landmark's kind, ``p_i`` the acquisition's in-stop pose of the turn closure, ``z_s`` the
 odometry from stop s to s+1 (its drive turned by stop s's end correction) with covariance
 ``L_s L_s^T``, ``sigma_c`` a random walk's prior on the drift coefficients and the last
-term the stops' mean heading change from the starting path (``rotation_sigma``: the pose
-graph's rotation of the whole path, which the echo pairs alone hardly observe).
+term the stops' mean heading change from the input stop poses ``psi^0`` (``rotation_sigma``:
+the pose graph's rotation of the whole path, which the echo pairs alone hardly observe, held
+to the input's in every round).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,14 +76,16 @@ class StopBundleConfig:
     rounds : int
         Map along the path, adjust, repeat.
     reweight : int
-        Solves with the Cauchy weights and landmark scales taken afresh, after the first.
+        Solves with the Cauchy weights and landmark scales taken afresh, after the first
+        (0 or more).
     rotation_sigma : float
         Standard deviation of the mean heading change of the stops 1..S-1 from the
-        starting path, rad (inf: free). The rotation of the whole path about the first
-        stop is held by the pose graph's registrations with the first stop, which the
-        adjustment does not see; alone it rests on the first stop's few echoes of strong
-        landmarks (corridor_L seed 1: the path turned by 2.3 degrees, and its relative
-        headings improved from 0.80 to 0.23 degrees RMS between stops).
+        input stop poses (the pose graph's, in every round), rad (inf: free). The
+        rotation of the whole path about the first stop is held by the pose graph's
+        registrations with the first stop, which the adjustment does not see; alone it
+        rests on the first stop's few echoes of strong landmarks (corridor_L seed 1: the
+        path turned by 2.3 degrees, and its relative headings improved from 0.80 to 0.23
+        degrees RMS between stops).
     hold_first_turn : bool
         Hold the first stop's in-stop drift at its initial coefficients with its pose
         (the pose alone is the gauge). Default False: held, the other stops' drifts took
@@ -97,7 +100,8 @@ class StopBundleConfig:
     Raises
     ------
     ValueError
-        A non-positive noise or scale, or an integer below 1.
+        A non-positive noise or scale, an integer below 1 (``reweight``: below 0) or a
+        ``hold_first_turn`` that is not a bool.
     """
 
     range_sigma: float = 0.01
@@ -120,6 +124,13 @@ class StopBundleConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"StopBundleConfig.{name} must be an integer >= 1, got {v!r}")
+        r = self.reweight
+        if isinstance(r, bool) or not isinstance(r, int | np.integer) or r < 0:
+            raise ValueError(f"StopBundleConfig.reweight must be an integer >= 0, got {r!r}")
+        if not isinstance(self.hold_first_turn, bool | np.bool_):
+            raise ValueError(
+                f"StopBundleConfig.hold_first_turn must be a bool, got {self.hold_first_turn!r}"
+            )
 
 
 def drift_basis(phase: npt.ArrayLike, modes: int) -> FloatArray:
@@ -175,13 +186,17 @@ def _ranges(
 class StopBundleResult:
     """Output of :func:`adjust_stop_bundle`: the stop poses (S, 3), the drift coefficients
     (S, modes; rad, over :func:`drift_basis`), the landmarks' kinds and states of the last
-    round and the number of echo pairs it used."""
+    round, the number of echo pairs it used, each landmark's robust residual scale of its
+    last solve (m; at least ``range_sigma``) and the number of solves that stopped at
+    ``max_nfev`` before converging (0: every solve converged)."""
 
     poses: FloatArray
     coefficients: FloatArray
     kinds: IntArray
     states: FloatArray
     n_pairs: int
+    scales: FloatArray
+    unconverged: int
 
 
 def adjust_stop_bundle(
@@ -211,7 +226,8 @@ def adjust_stop_bundle(
     phases : sequence of ndarray, shape (n_s,)
         Phase of every acquisition in its stop's turn (0 .. 1).
     stop_poses : ndarray, shape (S, 3)
-        Initial stop poses; row 0 holds the frame.
+        Initial stop poses; row 0 holds the frame, and the mean heading of rows 1..S-1 is
+        held to these (``rotation_sigma``) in every round.
     odometry : sequence of (ndarray (3,), ndarray (3, 3))
         Relative pose of stop s + 1 in stop s by the odometry from stop s's last in-stop
         pose (without its end heading noise) and its covariance, s = 0 .. S-2.
@@ -225,33 +241,50 @@ def adjust_stop_bundle(
     Returns
     -------
     StopBundleResult
+
+    Raises
+    ------
+    ValueError
+        No stops, or inputs whose shapes do not describe the same stops and acquisitions.
     """
     cfg = config or StopBundleConfig()
     mcfg = map_config or FixedPathConfig()
     ant = np.asarray(antennas, float).reshape(3, 2)
     n_stop = len(stop_ranges)
     modes = cfg.modes
-    if len(in_stop) != n_stop or len(phases) != n_stop or len(odometry) != max(n_stop - 1, 0):
+    if n_stop == 0:
+        raise ValueError("the bundle adjustment needs at least one stop")
+    if len(in_stop) != n_stop or len(phases) != n_stop or len(odometry) != n_stop - 1:
         raise ValueError("stop_ranges, in_stop, phases and odometry must describe the same stops")
-    prior_sd = np.asarray(prior_sd, float).reshape(n_stop, modes)
-    pose = np.asarray(stop_poses, float).reshape(n_stop, 3).copy()
-    coef = np.zeros((n_stop, modes)) if initial is None else np.array(initial, float)
-    coef = coef.reshape(n_stop, modes)
-    n_acq = stop_ranges[-1][1] if n_stop else 0
+    n_acq = int(stop_ranges[-1][1])
     stop_of = np.zeros(n_acq, np.intp)
+    prev = 0
     for s, (a, b) in enumerate(stop_ranges):  # a loop over the stops
-        stop_of[a:b] = s
+        if a != prev or b <= a or len(in_stop[s]) != b - a or len(phases[s]) != b - a:
+            raise ValueError(
+                f"stop {s}: range ({a}, {b}) must follow the last one and match its "
+                f"{len(in_stop[s])} in-stop poses and {len(phases[s])} phases"
+            )
+        stop_of[a:b], prev = s, b
+    if len(pairs) != n_acq or len(groups) != n_acq:
+        raise ValueError(f"pairs and groups must hold {n_acq} acquisitions")
+    prior_sd = np.asarray(prior_sd, float)
+    coef = np.zeros((n_stop, modes)) if initial is None else np.array(initial, float)
+    for name, v in (("prior_sd", prior_sd), ("initial", coef)):
+        if v.shape != (n_stop, modes):
+            raise ValueError(f"{name} must have shape ({n_stop}, {modes}), got {v.shape}")
+    anchor = np.asarray(stop_poses, float)
+    if anchor.shape != (n_stop, 3):
+        raise ValueError(f"stop_poses must have shape ({n_stop}, 3), got {anchor.shape}")
+    pose = anchor.copy()
     rel = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in in_stop])
     basis = drift_basis(np.concatenate([np.asarray(f, float) for f in phases]), modes)
-    if rel.shape[0] != n_acq or basis.shape[0] != n_acq:
-        raise ValueError(f"in_stop and phases must hold {n_acq} acquisitions")
     zs = [np.asarray(p, float).reshape(-1, 2) for p in pairs]
     z_all = np.concatenate([*zs, np.zeros((0, 2))])
     acq_all = np.repeat(np.arange(n_acq), [z.shape[0] for z in zs])
     oz = np.array([z for z, _ in odometry]).reshape(-1, 3)
     osq = np.array([sqrt_information(c) for _, c in odometry]).reshape(-1, 3, 3)
     oend = np.array([np.asarray(p, float)[-1, :2] for p in in_stop[:-1]]).reshape(-1, 2)
-    oi = np.arange(n_stop - 1)
 
     def acq_poses(p: FloatArray, c: FloatArray, acq: npt.NDArray[np.intp]) -> FloatArray:
         s = stop_of[acq]
@@ -261,13 +294,16 @@ def adjust_stop_bundle(
 
     kinds = np.zeros(0, np.int64)
     states = np.zeros((0, 2))
-    used = 0
+    scales = np.zeros(0)
+    used = unconverged = 0
     for _ in range(cfg.rounds):
         path = acq_poses(pose, coef, np.arange(n_acq))
         built = map_fixed_path(list(pairs), list(groups), path, ant, mcfg)
         lm = built.association
-        if built.kinds.size == 0 or lm.size != z_all.shape[0]:
+        if built.kinds.size == 0:
             break
+        if lm.size != z_all.shape[0]:  # an inconsistency of map_fixed_path, not of the input
+            raise ValueError(f"the map associated {lm.size} of {z_all.shape[0]} echo pairs")
         key = np.unique(np.column_stack([lm[lm >= 0], stop_of[acq_all[lm >= 0]]]), axis=0)
         n_lm = built.kinds.size
         strong = (np.bincount(lm[lm >= 0], minlength=n_lm) >= cfg.min_landmark_pairs) & (
@@ -279,69 +315,123 @@ def adjust_stop_bundle(
         # renumber the landmarks the adjustment uses
         keep_lm, li = np.unique(lm[sel], return_inverse=True)
         kinds, states = built.kinds[keep_lm], built.states[keep_lm].copy()
-        z, acq = z_all[sel], acq_all[sel]
-        pst = stop_of[acq]
+        acq = acq_all[sel]
         used = sel.size
-        pose, coef, states = _solve(
+        problem = _Problem(
             cfg,
             ant,
-            pose,
-            coef,
-            kinds,
-            states,
-            li,
-            z,
-            acq,
-            pst,
-            acq_poses,
-            (oi, oz, osq, oend),
-            prior_sd,
+            pose=pose,
+            anchor=anchor,
+            coef=coef,
+            kinds=kinds,
+            states=states,
+            li=li,
+            z=z_all[sel],
+            acq=acq,
+            pst=stop_of[acq],
+            acq_poses=acq_poses,
+            odo=(np.arange(n_stop - 1), oz, osq, oend),
+            prior_sd=prior_sd,
         )
-    return StopBundleResult(pose, coef, kinds, states, used)
+        pose, coef, states, scales, n_unconv = _solve(problem, cfg)
+        unconverged += n_unconv
+    return StopBundleResult(pose, coef, kinds, states, used, scales, unconverged)
 
 
-def _solve(
-    cfg: StopBundleConfig,
-    ant: FloatArray,
-    pose: FloatArray,
-    coef: FloatArray,
-    kinds: IntArray,
-    states: FloatArray,
-    li: npt.NDArray[np.intp],
-    z: FloatArray,
-    acq: npt.NDArray[np.intp],
-    pst: npt.NDArray[np.intp],
-    acq_poses: object,
-    odo: tuple[npt.NDArray[np.intp], FloatArray, FloatArray, FloatArray],
-    prior_sd: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """One robust sparse least-squares solve at a fixed association (see the module)."""
-    n_stop, modes = coef.shape
-    n_lm = kinds.size
-    oi, oz, osq, oend = odo
-    n_pose = 3 * (n_stop - 1)
-    # the first stop's turn is held with its pose (see StopBundleConfig.hold_first_turn)
-    first = int(cfg.hold_first_turn)
-    hold = np.isfinite(cfg.rotation_sigma) and n_stop > 1
-    n_coef = modes * (n_stop - first)
-    p0 = pose[:1]
+class _Problem:
+    """The least-squares problem of one solve at a fixed association (see the module):
+    the unknowns ``x`` (poses of stops 1..S-1, the drift coefficients, the landmark
+    states), the residuals :meth:`fun` in the blocks ``rows`` (``pairs``, ``odometry``,
+    ``prior``, ``rotation``) and their Jacobian ``jac`` over the sparsity pattern."""
 
-    def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        p = np.vstack([p0, x[:n_pose].reshape(-1, 3)])
-        c = np.vstack([coef[:first], x[n_pose : n_pose + n_coef].reshape(-1, modes)])
-        return p, c, x[n_pose + n_coef :].reshape(n_lm, 2)
+    def __init__(
+        self,
+        cfg: StopBundleConfig,
+        ant: FloatArray,
+        *,
+        pose: FloatArray,
+        anchor: FloatArray,
+        coef: FloatArray,
+        kinds: IntArray,
+        states: FloatArray,
+        li: npt.NDArray[np.intp],
+        z: FloatArray,
+        acq: npt.NDArray[np.intp],
+        pst: npt.NDArray[np.intp],
+        acq_poses: Callable[[FloatArray, FloatArray, npt.NDArray[np.intp]], FloatArray],
+        odo: tuple[npt.NDArray[np.intp], FloatArray, FloatArray, FloatArray],
+        prior_sd: FloatArray,
+    ) -> None:
+        self.cfg, self.ant, self.kinds, self.li, self.z = cfg, ant, kinds, li, z
+        self.acq, self.acq_poses, self.odo, self.prior_sd = acq, acq_poses, odo, prior_sd
+        n_stop, modes = coef.shape
+        self.n_stop, self.modes, self.n_lm = n_stop, modes, kinds.size
+        self.n_pose = n_pose = 3 * (n_stop - 1)
+        # the first stop's turn is held with its pose (see StopBundleConfig.hold_first_turn)
+        self.first = first = int(cfg.hold_first_turn)
+        self.hold = hold = bool(np.isfinite(cfg.rotation_sigma) and n_stop > 1)
+        self.n_coef = n_coef = modes * (n_stop - first)
+        self.p0, self.c0 = pose[:1].copy(), coef[:first].copy()
+        # the rotation hold's anchor: the input stop poses' headings, in every round
+        self.anchor = np.asarray(anchor, float)[1:, 2].copy()
+        self.scale = np.full(li.size, cfg.range_sigma)
+        self.weight = np.ones(li.size)
+        self.x0 = np.concatenate([pose[1:].ravel(), coef[first:].ravel(), states.ravel()])
+        m, n_odo = 2 * li.size, 3 * (n_stop - 1)
+        self.rows = {
+            "pairs": slice(0, m),
+            "odometry": slice(m, m + n_odo),
+            "prior": slice(m + n_odo, m + n_odo + n_coef),
+            "rotation": slice(m + n_odo + n_coef, m + n_odo + n_coef + int(hold)),
+        }
 
-    def pair_residuals(x: FloatArray) -> FloatArray:
-        p, c, st = unpack(x)
-        at = acq_poses(p, c, acq)  # type: ignore[operator]
-        return z - _ranges(kinds[li], st[li], at, ant)
+        # sparsity: a pair's two ranges touch its stop's pose and drift and its landmark; an
+        # odometry edge both stops' poses and drifts; a prior its coefficient
+        def stop_cols(s: npt.NDArray[np.intp]) -> npt.NDArray[np.intp]:
+            pc = np.where(s[:, None] > 0, 3 * (s[:, None] - 1) + np.arange(3), -1)
+            cc = np.where(s[:, None] >= first, n_pose + modes * (s[:, None] - first), -1)
+            return np.hstack([pc, np.where(cc >= 0, cc + np.arange(modes), -1)])
 
-    scale = np.full(li.size, cfg.range_sigma)
-    weight = np.ones(li.size)
+        oi = odo[0]
+        n_var = n_pose + n_coef + 2 * self.n_lm
+        blocks = [
+            (np.hstack([stop_cols(pst), n_pose + n_coef + 2 * li[:, None] + np.arange(2)]), 2),
+            (np.hstack([stop_cols(oi), stop_cols(oi + 1)]), 3),
+        ]
+        rows_l, cols_l, r0 = [], [], 0
+        for cb, k in blocks:
+            rr = r0 + np.arange(cb.shape[0] * k).reshape(-1, k)
+            rows_l.append(np.repeat(rr[:, :, None], cb.shape[1], 2).ravel())
+            cols_l.append(np.repeat(cb[:, None, :], k, 1).ravel())
+            r0 += cb.shape[0] * k
+        rows_l.append(r0 + np.arange(n_coef))
+        cols_l.append(n_pose + np.arange(n_coef))
+        r0 += n_coef + int(hold)
+        rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
+        keep = cols_a >= 0
+        self.jac = _SparseDifferences(self.fun, rows_a[keep], cols_a[keep], (r0, n_var))
+        if hold:  # the rotation hold's dense row is differentiated exactly
+            self.jac.dense_row(
+                r0 - 1, 3 * np.arange(n_stop - 1) + 2, 1.0 / ((n_stop - 1) * cfg.rotation_sigma)
+            )
 
-    def fun(x: FloatArray) -> FloatArray:
-        p, c, _ = unpack(x)
-        r_pair = pair_residuals(x) * (np.sqrt(weight) / scale)[:, None]
+    def unpack(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Stop poses (S, 3), drift coefficients (S, modes) and landmark states (L, 2)."""
+        p = np.vstack([self.p0, x[: self.n_pose].reshape(-1, 3)])
+        c = np.vstack([self.c0, x[self.n_pose : self.n_pose + self.n_coef].reshape(-1, self.modes)])
+        return p, c, x[self.n_pose + self.n_coef :].reshape(self.n_lm, 2)
+
+    def pair_residuals(self, x: FloatArray) -> FloatArray:
+        """Measured minus predicted ranges (m, 2) of the echo pairs, m."""
+        p, c, st = self.unpack(x)
+        at = self.acq_poses(p, c, self.acq)
+        return self.z - _ranges(self.kinds[self.li], st[self.li], at, self.ant)
+
+    def fun(self, x: FloatArray) -> FloatArray:
+        """Every weighted residual, in the order of ``rows``."""
+        cfg, (oi, oz, osq, oend) = self.cfg, self.odo
+        p, c, _ = self.unpack(x)
+        r_pair = self.pair_residuals(x) * (np.sqrt(self.weight) / self.scale)[:, None]
         pi, pj = p[oi], p[oi + 1]
         cc, ss = np.cos(pi[:, 2]), np.sin(pi[:, 2])
         dx, dy = pj[:, 0] - pi[:, 0], pj[:, 1] - pi[:, 1]
@@ -357,62 +447,43 @@ def _solve(
         )
         d[:, 2] = (d[:, 2] - oz[:, 2] - d_end + np.pi) % (2 * np.pi) - np.pi
         r_odo = np.einsum("mij,mj->mi", osq, d)
-        r_prior = (c[first:] / prior_sd[first:]).ravel()
-        # the path's mean heading change: the graph's rotation of the whole path is held
-        r_rot = np.atleast_1d(np.mean(p[1:, 2] - pose[1:, 2]) / cfg.rotation_sigma)
-        return np.concatenate([r_pair.ravel(), r_odo.ravel(), r_prior, r_rot[: int(hold)]])
+        r_prior = (c[self.first :] / self.prior_sd[self.first :]).ravel()
+        # the path's mean heading change from the input stop poses: the graph's rotation of
+        # the whole path is held (not from each round's start, where it could walk)
+        r_rot = np.atleast_1d(np.mean(p[1:, 2] - self.anchor) / cfg.rotation_sigma)
+        return np.concatenate([r_pair.ravel(), r_odo.ravel(), r_prior, r_rot[: int(self.hold)]])
 
-    # sparsity: a pair's two ranges touch its stop's pose and drift and its landmark; an
-    # odometry edge both stops' poses and drifts; a prior its coefficient
-    def stop_cols(s: npt.NDArray[np.intp]) -> npt.NDArray[np.intp]:
-        pc = np.where(s[:, None] > 0, 3 * (s[:, None] - 1) + np.arange(3), -1)
-        cc = np.where(s[:, None] >= first, n_pose + modes * (s[:, None] - first), -1)
-        return np.hstack([pc, np.where(cc >= 0, cc + np.arange(modes), -1)])
 
-    n_var = n_pose + n_coef + 2 * n_lm
-    blocks = [
-        (np.hstack([stop_cols(pst), n_pose + n_coef + 2 * li[:, None] + np.arange(2)]), 2),
-        (np.hstack([stop_cols(oi), stop_cols(oi + 1)]), 3),
-    ]
-    rows_l, cols_l, r0 = [], [], 0
-    for cb, k in blocks:
-        rr = r0 + np.arange(cb.shape[0] * k).reshape(-1, k)
-        rows_l.append(np.repeat(rr[:, :, None], cb.shape[1], 2).ravel())
-        cols_l.append(np.repeat(cb[:, None, :], k, 1).ravel())
-        r0 += cb.shape[0] * k
-    rows_l.append(r0 + np.arange(n_coef))
-    cols_l.append(n_pose + np.arange(n_coef))
-    r0 += n_coef
-    if hold:
-        rows_l.append(np.full(n_stop - 1, r0))
-        cols_l.append(3 * np.arange(n_stop - 1) + 2)
-        r0 += 1
-    rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
-    ok = cols_a >= 0
-    sparse_rows = r0 - int(hold)  # the rotation hold's dense row is differentiated exactly
-    keep = ok & (rows_a < sparse_rows)
-    jac = _SparseDifferences(fun, rows_a[keep], cols_a[keep], (r0, n_var))
-    if hold:
-        jac.dense_row(
-            r0 - 1, 3 * np.arange(n_stop - 1) + 2, 1.0 / ((n_stop - 1) * cfg.rotation_sigma)
-        )
-    x = np.concatenate([pose[1:].ravel(), coef[first:].ravel(), states.ravel()])
+def _solve(
+    problem: _Problem, cfg: StopBundleConfig
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, int]:
+    """Robust sparse least squares of ``problem``: stop poses, coefficients, landmark
+    states, each landmark's robust residual scale (m) and the solves that stopped at
+    ``max_nfev``."""
+    x = problem.x0
+    n_lm, li = problem.n_lm, problem.li
+    lm_scale = np.full(n_lm, cfg.range_sigma)
+    unconverged = 0
     # iteratively reweighted: Cauchy weights on the echo pairs only (a robust loss on the
     # odometry and the drift prior would let a large residual switch them off), and each
     # landmark's own robust residual scale (a point-like object edge scatters by
     # centimetres, a wall by millimetres: room_pillar at the true path, 3.7 against 0.6 cm)
     for _ in range(cfg.reweight + 1):
-        r = pair_residuals(x)
+        r = problem.pair_residuals(x)
         mad = group_median(np.abs(r).mean(1), li, n_lm)
-        scale = np.maximum(cfg.range_sigma, 1.4826 * mad)[li]
-        chi2 = np.sum((r / scale[:, None]) ** 2, 1)
-        weight = 1.0 / (1.0 + chi2 / (2.0 * cfg.loss_scale**2))
-        sol = least_squares(fun, x, jac=jac, method="trf", x_scale="jac", max_nfev=cfg.max_nfev)
+        lm_scale = np.maximum(cfg.range_sigma, 1.4826 * mad)
+        problem.scale = lm_scale[li]
+        chi2 = np.sum((r / problem.scale[:, None]) ** 2, 1)
+        problem.weight = 1.0 / (1.0 + chi2 / (2.0 * cfg.loss_scale**2))
+        sol = least_squares(
+            problem.fun, x, jac=problem.jac, method="trf", x_scale="jac", max_nfev=cfg.max_nfev
+        )
+        unconverged += int(sol.status == 0)
         x = sol.x
-    p, c, st = unpack(x)
+    p, c, st = problem.unpack(x)
     p = p.copy()
     p[:, 2] = (p[:, 2] + np.pi) % (2 * np.pi) - np.pi
-    return p, c.copy(), st.copy()
+    return p, c.copy(), st.copy(), lm_scale, unconverged
 
 
 class _SparseDifferences:
@@ -424,7 +495,7 @@ class _SparseDifferences:
 
     def __init__(
         self,
-        fun: object,
+        fun: Callable[[FloatArray], FloatArray],
         rows: npt.NDArray[np.intp],
         cols: npt.NDArray[np.intp],
         shape: tuple[int, int],
@@ -445,13 +516,13 @@ class _SparseDifferences:
         self.extra.append((row, cols, value))
 
     def __call__(self, x: FloatArray) -> scipy.sparse.csr_matrix:
-        f0 = self.fun(x)  # type: ignore[operator]
+        f0 = self.fun(x)
         h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
         vals = np.zeros(self.rows.size)
         col_group = self.group[self.cols]
         for g in range(int(self.group.max()) + 1):  # one evaluation per colour group
             step = np.where(self.group == g, h, 0.0)
-            f1 = self.fun(x + step)  # type: ignore[operator]
+            f1 = self.fun(x + step)
             on = col_group == g
             vals[on] = (f1[self.rows[on]] - f0[self.rows[on]]) / h[self.cols[on]]
         rows, cols = [self.rows], [self.cols]

@@ -698,18 +698,21 @@ def predicted_images(images_a: FloatArray, pose: FloatArray, point_bias: float =
 
 
 def images_seen_from(
-    images_a: FloatArray, t: FloatArray, point_bias: float = 0.0
+    images_a: FloatArray, t: FloatArray, point_bias: float = 0.0, guard: bool = True
 ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
     """``T' - t`` (..., 2; A-frame axes, m) of A's reflector images ``images_a`` (..., 2; A
     frame, A's transmitter at the origin) seen from B's transmitter at ``t`` (..., 2; A
     frame), broadcast, under each hypothesis (Fig. 19 / eq. (11) of the CoLOR chapter; see
-    :func:`predicted_images`): the wall ``2 (d - n . t) n`` (NaN where B sees it from behind,
-    ``d - n . t <= 0.05``), the corner or point ``I - 2 t``, and the point scatterer with
-    ``point_bias`` (None when it is 0)."""
+    :func:`predicted_images`): the wall ``2 (d - n . t) n`` (with ``guard`` NaN where B sees
+    it from behind, ``d - n . t <= 0.05``: no correspondence is formed there; without it the
+    smooth model, for a residual over formed correspondences), the corner or point
+    ``I - 2 t``, and the point scatterer with ``point_bias`` (None when it is 0)."""
     norm = np.maximum(np.linalg.norm(images_a, axis=-1, keepdims=True), 1e-9)
     nrm = images_a / norm
     s = 0.5 * norm - np.sum(nrm * t, -1, keepdims=True)
-    wall = np.where(s > 0.05, 2.0 * s * nrm, np.nan)
+    wall = 2.0 * s * nrm
+    if guard:
+        wall = np.where(s > 0.05, wall, np.nan)
     point = images_a - 2.0 * t
     if point_bias == 0.0:
         return wall, point, None
@@ -1277,13 +1280,14 @@ def refine_turns(
         ib = _rotate(img_b, np.sum(g_b * c[ej], 1))
         pi, pj = p[ei], p[ej]
         t = _rotate(pj[:, :2] - pi[:, :2], -pi[:, 2])
-        w_rel, p_rel, s_rel = images_seen_from(ia, t, point_bias)
+        # the wall's guard acted when the correspondence was formed (predicted_images at the
+        # stop pair's pose); here the model stays smooth (a residual zeroed behind B would
+        # make the cost jump, and hide a NaN)
+        w_rel, p_rel, s_rel = images_seen_from(ia, t, point_bias, guard=False)
         pt = p_rel if s_rel is None else np.where(scat[:, None], s_rel, p_rel)
         rel = np.where(wall[:, None], w_rel, pt)
         pred = _rotate(rel, -(pj[:, 2] - pi[:, 2]))
-        # a wall the refinement moved behind B's transmitter explains nothing (its
-        # correspondence was formed in front, where predicted_images keeps it)
-        return np.nan_to_num((ib - pred) / sig[:, None], nan=0.0)
+        return (ib - pred) / sig[:, None]
 
     def fun(x: FloatArray) -> FloatArray:
         p, c = unpack(x)

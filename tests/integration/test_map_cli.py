@@ -258,3 +258,26 @@ def test_map_stop_graph_without_odometry(turning_recording: Path, tmp_path: Path
     proc = uwbnet("map", str(first), "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert last_json(proc)["localise"] == "stops"
+
+
+def test_map_bundle_adjust_reaches_the_stop_graph(turning_recording: Path, tmp_path: Path) -> None:
+    """``--bundle-adjust`` / ``--no-bundle-adjust`` set ``StopGraphConfig.bundle_adjust``:
+    the path moves with it, and map.json's stop fields record it; without either the
+    config's default holds."""
+    from fusion_center.mapping.stop_graph import StopGraphConfig
+
+    docs, stats = {}, {}
+    for flag in ("", "--bundle-adjust", "--no-bundle-adjust"):
+        out = tmp_path / f"map{flag}.json"
+        args = ["map", str(turning_recording), "--out", str(out), "--localise", "stops"]
+        proc = uwbnet(*args, *([flag] if flag else []))
+        assert proc.returncode == 0, proc.stderr
+        docs[flag], stats[flag] = json.loads(out.read_text()), last_json(proc)
+    on, off = docs["--bundle-adjust"], docs["--no-bundle-adjust"]
+    assert on["bundle_adjust"] is True and stats["--bundle-adjust"]["bundle_adjust"] is True
+    assert off["bundle_adjust"] is False and stats["--no-bundle-adjust"]["bundle_adjust"] is False
+    default = StopGraphConfig().bundle_adjust
+    assert docs[""]["bundle_adjust"] is default
+    assert docs[""]["trajectory"] == (on if default else off)["trajectory"]
+    moved = np.abs(np.array(on["trajectory"]) - np.array(off["trajectory"]))[:, 1:]
+    assert moved.max() > 1e-3  # the adjustment ran

@@ -556,3 +556,79 @@ def test_the_link_scatter_reaches_the_turn_closer() -> None:
     assert not np.isfinite(StopGraphPathEstimator(ANTENNAS).closer.config.link_scatter)
     est = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(closure_link_scatter=0.1))
     assert est.closer.config.link_scatter == 0.1
+
+
+def _walls(lines: np.ndarray, pose: np.ndarray, phase: np.ndarray) -> StopScan:
+    """A stop at ``pose`` (world) whose reflectors are the walls ``n . x = d`` of ``lines``
+    (normal angle, d; world): their images ``2 (d - n . t) n`` in the stop's axes."""
+    n = np.column_stack([np.cos(lines[:, 0]), np.sin(lines[:, 0])])
+    img = 2.0 * (lines[:, 1] - n @ pose[:2])[:, None] * n
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    img = np.column_stack([c * img[:, 0] + s * img[:, 1], -s * img[:, 0] + c * img[:, 1]])
+    k = len(img)
+    return StopScan(
+        start=0,
+        end=1,
+        poses=np.zeros((1, 3)),
+        end_sigma=np.radians(1.0),
+        closed=True,
+        on_the_spot=True,
+        images=img,
+        weights=np.full(k, 20.0),
+        image_sigma=np.full(k, 0.005),
+        turn_basis=turn_basis(phase),
+    )
+
+
+def test_refine_turns_residual_is_smooth_where_a_wall_passes_behind_b(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """B stands 7 cm before a wall of A (its correspondence is formed: in front by more than
+    the 5 cm guard). The refinement's residuals are linear in B's position along the wall's
+    normal (walls' images ``2 (d - n . t) n``, heading fixed), also where the wall passes
+    within 5 cm and behind B: no residual jumps to 0 there (the cost stays continuous for
+    the forward differences), none turns NaN."""
+    import fusion_center.mapping.stop_graph as sg
+
+    angles = np.radians(np.arange(0.0, 360.0, 40.0))
+    lines = np.column_stack([angles, 2.0 + 0.1 * np.arange(angles.size)])
+    lines[0, 1] = 1.0  # the wall x = 1
+    pb = np.array([0.93, 0.3, 0.0])
+    a = _walls(lines, np.zeros(3), np.linspace(0.1, 0.9, len(lines)))
+    b = _walls(lines, pb, np.linspace(0.9, 0.1, len(lines)))
+    seen = []
+    solve = sg.least_squares
+
+    def spy(fun, x0, **kw):  # type: ignore[no-untyped-def]
+        seen.append((fun, x0.copy()))
+        return solve(fun, x0, **kw)
+
+    monkeypatch.setattr(sg, "least_squares", spy)
+    odo = [(pb, np.eye(3) * 1e-4)]
+    refine_turns([a, b], [], np.zeros(0), np.vstack([np.zeros(3), pb]), odo, StopGraphConfig())
+    fun, x0 = seen[0]
+    assert x0.size == 3 + 4  # B's pose, two coefficients per stop
+    r = []
+    for x in np.linspace(0.93, 0.98, 11):  # the wall's distance from B: 7 -> 2 cm
+        xx = x0.copy()
+        xx[0] = x
+        r.append(fun(xx))
+    r = np.array(r)
+    assert np.all(np.isfinite(r))
+    moved = np.abs(r[-1] - r[0]) > 1e-3
+    assert moved[: 2 * 2 * len(lines)].any()  # the correspondences see B move
+    np.testing.assert_allclose(np.diff(r, 2, axis=0), 0.0, atol=1e-8 * np.abs(r).max())
+
+
+def test_refine_turns_does_not_hide_a_nan() -> None:
+    """A NaN in a matched reflector's scatter reaches the residuals and stops the solve with
+    a ValueError (least_squares': residuals not finite), not a residual silently set to 0."""
+    angles = np.radians(np.arange(0.0, 360.0, 40.0))
+    lines = np.column_stack([angles, 2.0 + 0.1 * np.arange(angles.size)])
+    pb = np.array([0.5, 0.3, 0.0])
+    a = _walls(lines, np.zeros(3), np.linspace(0.1, 0.9, len(lines)))
+    a = replace(a, image_sigma=np.r_[np.nan, a.image_sigma[1:]])
+    b = _walls(lines, pb, np.linspace(0.9, 0.1, len(lines)))
+    odo = [(pb, np.eye(3) * 1e-4)]
+    with pytest.raises(ValueError, match="finite"):
+        refine_turns([a, b], [], np.zeros(0), np.vstack([np.zeros(3), pb]), odo, StopGraphConfig())

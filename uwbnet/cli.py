@@ -842,7 +842,7 @@ def build_parser() -> argparse.ArgumentParser:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="the stop graph: adjust its path over every echo pair after the refinement "
-        "(default: StopGraphConfig's, off; see docs/mapping.md)",
+        "(default: on; see docs/mapping.md)",
     )
     mp.set_defaults(func=cmd_map)
 

@@ -398,18 +398,9 @@ class _Problem:
             (np.hstack([stop_cols(pst), n_pose + n_coef + 2 * li[:, None] + np.arange(2)]), 2),
             (np.hstack([stop_cols(oi), stop_cols(oi + 1)]), 3),
         ]
-        rows_l, cols_l, r0 = [], [], 0
-        for cb, k in blocks:
-            rr = r0 + np.arange(cb.shape[0] * k).reshape(-1, k)
-            rows_l.append(np.repeat(rr[:, :, None], cb.shape[1], 2).ravel())
-            cols_l.append(np.repeat(cb[:, None, :], k, 1).ravel())
-            r0 += cb.shape[0] * k
-        rows_l.append(r0 + np.arange(n_coef))
-        cols_l.append(n_pose + np.arange(n_coef))
-        r0 += n_coef + int(hold)
-        rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
-        keep = cols_a >= 0
-        self.jac = _SparseDifferences(self.fun, rows_a[keep], cols_a[keep], (r0, n_var))
+        rows_a, cols_a, r0 = block_pattern(blocks, n_pose + np.arange(n_coef))
+        r0 += int(hold)
+        self.jac = _SparseDifferences(self.fun, rows_a, cols_a, (r0, n_var))
         if hold:  # the rotation hold's dense row is differentiated exactly
             self.jac.dense_row(
                 r0 - 1, 3 * np.arange(n_stop - 1) + 2, 1.0 / ((n_stop - 1) * cfg.rotation_sigma)
@@ -533,6 +524,29 @@ class _SparseDifferences:
         return scipy.sparse.csr_matrix(
             (vals, (np.concatenate(rows), np.concatenate(cols))), shape=self.shape
         )
+
+
+def block_pattern(
+    blocks: Sequence[tuple[npt.NDArray[np.intp], int]], diagonal: npt.NDArray[np.intp]
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], int]:
+    """Nonzero pattern of a least-squares Jacobian made of residual blocks, then one row per
+    entry of ``diagonal`` (a prior on that column).
+
+    ``blocks``: ``(cols, k)`` pairs, one per kind of residual: ``cols`` (m, c) the columns
+    each of m residual groups touches (-1: none), ``k`` the rows per group; the groups' rows
+    follow each other in that order. Returns the rows and columns of the nonzeros and the
+    number of rows."""
+    rows_l, cols_l, r0 = [], [], 0
+    for cb, k in blocks:
+        rr = r0 + np.arange(cb.shape[0] * k).reshape(-1, k)
+        rows_l.append(np.repeat(rr[:, :, None], cb.shape[1], 2).ravel())
+        cols_l.append(np.repeat(cb[:, None, :], k, 1).ravel())
+        r0 += cb.shape[0] * k
+    rows_l.append(r0 + np.arange(diagonal.size))
+    cols_l.append(np.asarray(diagonal, np.intp))
+    rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
+    keep = cols_a >= 0
+    return rows_a[keep], cols_a[keep], r0 + diagonal.size
 
 
 def sqrt_information(cov: FloatArray) -> FloatArray:

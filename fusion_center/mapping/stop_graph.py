@@ -63,6 +63,7 @@ from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.stop_bundle import (
     StopBundleConfig,
     adjust_stop_bundle,
+    block_pattern,
     drift_basis,
     drift_prior,
 )
@@ -1313,18 +1314,9 @@ def refine_turns(
         return np.hstack([pc, cc])
 
     blocks = [(np.hstack([cols(ei), cols(ej)]), 2), (np.hstack([cols(oi), cols(oi + 1)]), 3)]
-    rows_l, cols_l, r0 = [], [], 0
-    for cb, k in blocks:
-        rr = r0 + np.arange(cb.shape[0] * k).reshape(-1, k)
-        rows_l.append(np.repeat(rr[:, :, None], cb.shape[1], 2).ravel())
-        cols_l.append(np.repeat(cb[:, None, :], k, 1).ravel())
-        r0 += cb.shape[0] * k
-    rows_l.append(r0 + np.arange(2 * n))
-    cols_l.append(3 * (n - 1) + np.arange(2 * n))
-    rows_a, cols_a = np.concatenate(rows_l), np.concatenate(cols_l)
-    keep = cols_a >= 0
+    rows_a, cols_a, n_rows = block_pattern(blocks, 3 * (n - 1) + np.arange(2 * n))
     sparsity = scipy.sparse.coo_matrix(
-        (np.ones(keep.sum()), (rows_a[keep], cols_a[keep])), shape=(r0 + 2 * n, nv)
+        (np.ones(rows_a.size), (rows_a, cols_a)), shape=(n_rows, nv)
     ).tocsr()
     x = np.concatenate([p0[1:].ravel(), np.zeros(2 * n)])
     for _ in range(max(rounds, 1)):

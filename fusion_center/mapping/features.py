@@ -119,7 +119,9 @@ def merge_walls(
         if np.isfinite(max_gap):
             gap_along = np.maximum(t.min(1) - extent[i, 1], extent[i, 0] - t.max(1))
             same &= gap_along <= max_gap
-            same[i] = True
+        # a wall is always on its own line: at dist = 0 rounding put its own ends off it
+        # (an empty group, then NaN lines)
+        same[i] = True
         near = same.copy()
         if overlap_dist > 0.0:
             # Wall j's distance from wall i's line where the two overlap along it

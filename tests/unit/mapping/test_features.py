@@ -35,6 +35,19 @@ def test_without_max_gap_collinear_walls_make_one() -> None:
     assert h[0] == 18.0
 
 
+@pytest.mark.parametrize("max_gap", [np.inf, 1.0])
+def test_zero_merge_distance_keeps_every_wall_as_it_is(max_gap) -> None:
+    # dist = 0 merges nothing (a wall's own ends lie within rounding of its line, not on
+    # it): each wall comes back unchanged, never empty or NaN
+    walls, extent, hits = _collinear()
+    walls = walls + np.array([[0.3, 0.0]])  # off the axes, where rounding shows
+    w, e, h = merge_walls(walls, extent, hits, dist=0.0, angle=0.0, max_gap=max_gap)
+    order = np.argsort(e[:, 0])
+    np.testing.assert_allclose(w[order], walls, atol=1e-12)
+    np.testing.assert_allclose(e[order], extent, atol=1e-9)
+    np.testing.assert_allclose(h[order], hits)
+
+
 # close_outline: walls of an L-shaped room seen only near their specular points
 
 

@@ -114,6 +114,7 @@ class MapStats:
     stops_registered: int = 0
     wall_gap: float | None = None
     bundle_adjust: bool | None = None
+    bundle_unconverged: int | None = None
     eval: dict[str, Any] | None = None
     eval_filter: dict[str, Any] | None = None
 
@@ -282,6 +283,13 @@ def _map_by_stops(
     stats.stops_closed = sum(res.stops[i].closed for i in turns)
     stats.registrations = res.n_registered
     stats.stops_registered = len(joined.intersection(turns))
+    stats.bundle_unconverged = res.bundle_unconverged
+    if res.bundle_unconverged:
+        log.warning(
+            "%s: %d solve(s) of the bundle adjustment stopped before converging",
+            path,
+            res.bundle_unconverged,
+        )
     why = stops_unsuited(step, stats.stops, stats.stops_registered)
     if why is not None and auto:
         raise _NotStopsError(why)
@@ -470,6 +478,7 @@ def map_recording(
             stops_registered=stats.stops_registered,
             wall_gap=stats.wall_gap,
             bundle_adjust=stats.bundle_adjust,
+            bundle_unconverged=stats.bundle_unconverged,
         )
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)

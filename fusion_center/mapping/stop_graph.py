@@ -1359,6 +1359,9 @@ class StopGraphResult:
     n_registered : int
         Accepted registrations in the graph. 0: the path is the odometry with the turn
         closure alone (no stop had reflectors to register, e.g. no turns on the spot).
+    bundle_unconverged : int or None
+        Solves of the bundle adjustment that stopped at their evaluation limit before
+        converging (0: all converged; None: no bundle adjustment ran).
     """
 
     trajectory: FloatArray
@@ -1369,6 +1372,7 @@ class StopGraphResult:
     registrations: list[tuple[int, int, Registration]] = field(default_factory=list)
     turn_coefficients: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     n_registered: int = 0
+    bundle_unconverged: int | None = None
 
 
 class StopGraphPathEstimator:
@@ -1455,9 +1459,10 @@ class StopGraphPathEstimator:
         poses: FloatArray,
         coef: FloatArray,
         odo: list[tuple[FloatArray, FloatArray]],
-    ) -> tuple[FloatArray, FloatArray]:
-        """Stop poses and in-stop drift coefficients (S, modes) of the bundle adjustment
-        over the echo pairs (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`),
+    ) -> tuple[FloatArray, FloatArray, int]:
+        """Stop poses, in-stop drift coefficients (S, modes) and unconverged solves of the
+        bundle adjustment over the echo pairs
+        (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`),
         started from the refinement's (its two coefficients are the first two modes). The
         drift prior: each turn's end error (``end_sigma``) and the bridge of its odometry's
         random walk (``odometry_sigma``; ``end_sigma`` when unknown)."""
@@ -1481,7 +1486,7 @@ class StopGraphPathEstimator:
             self.bundle,
             initial=init,
         )
-        return res.poses, res.coefficients
+        return res.poses, res.coefficients, res.unconverged
 
     def estimate(self, log: ScanLog) -> StopGraphResult:
         """Stop poses and the path of every acquisition of ``log`` (see the module)."""
@@ -1556,8 +1561,9 @@ class StopGraphPathEstimator:
             poses, coef, _ = refine_turns(
                 stops, graph.edges, wt, poses, odo, cfg, point_bias=self.point_bias
             )
+        unconverged = None
         if cfg.bundle_adjust and n > 1:
-            poses, coef = self._bundle_adjust(log, stops, poses, coef, odo)
+            poses, coef, unconverged = self._bundle_adjust(log, stops, poses, coef, odo)
         modes = coef.shape[1]
         stops = [
             replace(
@@ -1580,6 +1586,7 @@ class StopGraphPathEstimator:
             registrations=regs,
             turn_coefficients=coef,
             n_registered=sum(1 for e in graph.edges if e.kind != "odometry"),
+            bundle_unconverged=unconverged,
         )
 
 

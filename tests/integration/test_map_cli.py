@@ -262,8 +262,8 @@ def test_map_stop_graph_without_odometry(turning_recording: Path, tmp_path: Path
 
 def test_map_bundle_adjust_reaches_the_stop_graph(turning_recording: Path, tmp_path: Path) -> None:
     """``--bundle-adjust`` / ``--no-bundle-adjust`` set ``StopGraphConfig.bundle_adjust``:
-    the path moves with it, and map.json's stop fields record it; without either the
-    config's default holds."""
+    the path moves with it, and map.json's stop fields record it and its unconverged
+    solves; without either the config's default holds."""
     from fusion_center.mapping.stop_graph import StopGraphConfig
 
     docs, stats = {}, {}
@@ -276,6 +276,10 @@ def test_map_bundle_adjust_reaches_the_stop_graph(turning_recording: Path, tmp_p
     on, off = docs["--bundle-adjust"], docs["--no-bundle-adjust"]
     assert on["bundle_adjust"] is True and stats["--bundle-adjust"]["bundle_adjust"] is True
     assert off["bundle_adjust"] is False and stats["--no-bundle-adjust"]["bundle_adjust"] is False
+    # how many of its solves stopped short: a count when it ran, null when it did not
+    assert isinstance(on["bundle_unconverged"], int) and on["bundle_unconverged"] >= 0
+    assert stats["--bundle-adjust"]["bundle_unconverged"] == on["bundle_unconverged"]
+    assert off["bundle_unconverged"] is None
     default = StopGraphConfig().bundle_adjust
     assert docs[""]["bundle_adjust"] is default
     assert docs[""]["trajectory"] == (on if default else off)["trajectory"]

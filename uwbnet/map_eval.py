@@ -13,14 +13,16 @@ Figures (metres, degrees):
   fraction of the room outline's length covered by matched walls.
   ``unsupported_m`` is the length of mapped wall farther than 0.2 m from every true face
   (walls invented through openings, or placed off by the path's error).
-* corners: concave corners of the truth (room corners, object sides meeting a room wall); for
+* corners: concave corners of the truth (room corners, object sides meeting a room wall; not
+  the reflex vertex of an L-shaped room, which is an edge below); for
   each, the nearest mapped corner within 0.5 m; ``false`` counts the mapped corners farther
   than 0.5 m from every true corner.
 * ``walls.unsupported_aligned_m`` and ``corners.false_aligned`` (with a trajectory and true
   poses) are the same after the best rigid fit of the path to the truth is applied to the map:
   what is left besides one rotation and shift of the whole map, e.g. a heading error made at
   the first stop.
-* points: convex edges of the objects (their vertical edges away from the room walls); for each
+* points: convex edges of the objects (their vertical edges away from the room walls) and the
+  room's reflex vertices (``edges``: the nearest mapped point within 0.5 m); for each
   object, the nearest mapped point to its outline (``found`` within 15 cm).
 * trajectory: RMSE of the position and of the heading over all acquisitions, and the mean
   position and heading error per stop (``per_stop_m``, ``per_stop_yaw_deg``: a stop is a run of
@@ -62,7 +64,19 @@ def truth_geometry(scenario: Any) -> dict[str, Any]:
                 return True
         return False
 
-    faces, corners, edges, objects = list(room_segs), list(outline[:-1]), [], []
+    # An outline vertex turning the way the outline winds is a concave corner seen from
+    # inside (a double-reflection corner, Fig. 19); a reflex vertex (the inner vertex of an
+    # L) faces the room as a convex edge, a diffraction point like an object's edge.
+    ring = outline[:-1]
+    if len(ring) >= 3:
+        area = np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
+        ein, eout = ring - np.roll(ring, 1, 0), np.roll(ring, -1, 0) - ring
+        turn = ein[:, 0] * eout[:, 1] - ein[:, 1] * eout[:, 0]
+        reflex = turn * area < 0
+    else:
+        reflex = np.zeros(len(ring), bool)
+    faces, objects = list(room_segs), []
+    corners, edges = list(ring[~reflex]), list(ring[reflex])
     for o in scenario.objects:
         fp = np.array(o.footprint, float)
         objects.append((o.id, fp))

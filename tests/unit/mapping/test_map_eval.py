@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 import uwbnet.map_eval as me
 from uwbnet.map_cmd import compose
@@ -114,3 +115,20 @@ def test_unsupported_length_and_false_corners_with_and_without_the_path_fit() ->
     # once the rotation is removed only the invented metre past the corner is unsupported
     assert abs(me._unsupported_length(fitted, faces) - 0.8) < 0.05
     assert me._false_corners(corner @ r + shift, np.array([[10.0, 0]])) == 0
+
+
+@pytest.mark.parametrize("clockwise", [False, True])
+def test_an_l_rooms_inner_vertex_is_an_edge_not_a_corner(clockwise) -> None:
+    # The L's reflex vertex (9.6, 2.4) faces the room as a convex edge (a diffraction point,
+    # mapped as a point), not a corner reflector: the corners are the other five.
+    from sim_nodes.scene import load_scenario
+
+    sc = load_scenario("corridor_L")
+    if clockwise:
+        sc = sc.model_copy(
+            update={"room": sc.room.model_copy(update={"outline": sc.room.outline[::-1]})}
+        )
+    g = me.truth_geometry(sc)
+    corners = {tuple(np.round(c, 6)) for c in g["corners"]}
+    assert corners == {(0.0, 0.0), (12.0, 0.0), (12.0, 10.0), (9.6, 10.0), (0.0, 2.4)}
+    np.testing.assert_allclose(g["edges"], [[9.6, 2.4]])

@@ -162,6 +162,21 @@ class FixedPathConfig:
         three stops). 1 (a chi-square difference of 2): no wrong decision at 1.5-4 m in that
         probe, with points at 2.5 m undecided in 4 of 6 seeds; 15 of 67 and 10 of 61 mapped
         point-like landmarks undecided on room_pillar seeds 0 and 1 at the true path.
+    corner_span : float
+        Largest angle, about a corner landmark, that the stops which heard it may span
+        (rad). A concave corner returns its double reflection (Fig. 19) only into the
+        quadrant between its two walls; a point-like landmark heard from stops spread over
+        more than that quadrant (plus the path's error) is a convex edge or a scatterer
+        heard from around it, and is mapped as a point (``inf``: off).
+    corner_rate : float
+        Smallest hearing rate of a mapped corner: its pairs per acquisition made at the stops
+        no farther from it than the farthest stop that heard it. A concave corner is a
+        retro-reflector, heard from every stop in its quadrant within range; a multipath
+        image or an alias heard from a few stops in special positions is not. Corners below
+        it are left out of the map (0: off).
+    corner_separation : float
+        Of two corners closer than this, the one with fewer pairs is left out (the same
+        corner fitted twice, e.g. from two sides at a path that is a little off), m (0: off).
     fitted_kinds : bool
         Corner or point as fitted (the better Cauchy cost of the two models over all the
         landmark's echoes), not by :func:`~fusion_center.mapping.features.build_map`'s
@@ -194,6 +209,9 @@ class FixedPathConfig:
     overlap_angle: float = np.radians(12.0)
     extend: float = 1.0
     kind_margin: float = 1.0
+    corner_span: float = np.radians(110.0)
+    corner_rate: float = 0.015
+    corner_separation: float = 0.3
     fitted_kinds: bool = True
     drop_crossed: bool = False
     keep_ties: bool = False
@@ -222,6 +240,8 @@ class FixedPathConfig:
             "overlap_dist": self.overlap_dist,
             "overlap_angle": self.overlap_angle,
             "extend": self.extend,
+            "corner_rate": self.corner_rate,
+            "corner_separation": self.corner_separation,
         }
         for name, v in non_negative.items():
             if not (np.isfinite(v) and v >= 0.0):
@@ -235,6 +255,8 @@ class FixedPathConfig:
                 "FixedPathConfig.assoc_gate_start must be >= assoc_gate (the gate shrinks), "
                 f"got {self.assoc_gate_start!r} < {self.assoc_gate!r}"
             )
+        if not self.corner_span > 0.0:
+            raise ValueError(f"FixedPathConfig.corner_span must be > 0, got {self.corner_span!r}")
         if not self.wall_gap > 0.0:
             raise ValueError(f"FixedPathConfig.wall_gap must be > 0, got {self.wall_gap!r}")
         for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds"):
@@ -273,6 +295,14 @@ class FixedPathMap:
     association : ndarray of int, shape (m,)
         Landmark (index into ``kinds``) of every echo pair, in the order of the pairs
         concatenated over the acquisitions; -1: none (empty when no landmark was formed).
+    view_span, hearing_rate : ndarray, shape like ``kinds``
+        Of every point-like landmark (NaN for walls): the angle about it spanned by the stops
+        that heard it (rad) and its pairs per acquisition at the stops within the farthest
+        hearing distance (:meth:`_FixedPathMapper.corner_evidence`).
+    screened : ndarray of bool, shape like ``kinds``
+        The corners left out of the map by ``corner_rate`` or ``corner_separation``
+        (``kinds`` are as fitted: a corner the map holds as a point by ``corner_span`` is
+        still a corner there).
     """
 
     map: SlamMap
@@ -284,6 +314,9 @@ class FixedPathMap:
     stop_corrections: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     undecided: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     association: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    view_span: FloatArray = field(default_factory=lambda: np.zeros(0))
+    hearing_rate: FloatArray = field(default_factory=lambda: np.zeros(0))
+    screened: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
 
 
 def _world_array(poses: FloatArray, antennas: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -851,8 +884,12 @@ class _FixedPathMapper:
         lm = self.associate(kinds, states, cfg.assoc_gate)
         kinds, states = self.fit(kinds, states, lm)
         pairs, stops = self.support(kinds.size, lm)
+        span, rate = self.corner_evidence(kinds, states, lm)
+        # the map's kinds only: ``kinds`` stay as fitted (the stop bundle adjustment refits
+        # the landmarks with their fitted models)
+        map_kinds, screened = self.screen_corners(kinds, states, pairs, stops, span, rate)
         the_map = build_map(
-            self.landmark_set(kinds, states, lm, pairs, stops),
+            self.landmark_set(map_kinds, states, lm, pairs, stops, ~screened),
             merge_gap=cfg.wall_gap,
             overlap_dist=cfg.overlap_dist,
             overlap_angle=cfg.overlap_angle,
@@ -879,7 +916,82 @@ class _FixedPathMapper:
             stop_corrections=self.corr.copy(),
             undecided=self.undecided.copy(),
             association=lm.astype(np.int64),
+            view_span=span,
+            hearing_rate=rate,
+            screened=screened,
         )
+
+    def corner_evidence(
+        self, kinds: IntArray, states: FloatArray, lm: IntArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """View span and hearing rate of every point-like landmark (NaN for walls).
+
+        The span is the smallest angle about the landmark that holds the directions to the
+        mean transmitter positions of the stops that heard it (``2 pi`` minus the largest
+        gap between those directions), rad. The hearing rate is its associated pairs over
+        the acquisitions made at the stops whose mean transmitter position is no farther from
+        it than the farthest of those stops: the fraction of the looks from within its
+        hearing distance that heard it.
+
+        Beyond the chapter: the chapter's double-reflection model (Fig. 19) says where a
+        corner's echo comes from, not who hears it; the view-span test is its visibility
+        region (a retro-reflector within its two walls' quadrant), the rate a detection
+        frequency test in the spirit of a track's existence score (Mullane et al., Random
+        finite sets for robot mapping and SLAM, 2011, detection probability per view).
+        """
+        n = kinds.size
+        span = np.full(n, np.nan)
+        rate = np.full(n, np.nan)
+        used = lm >= 0
+        cand = np.flatnonzero(kinds != WALL)
+        if cand.size == 0 or not np.any(used):
+            return span, rate
+        ctr = self.stop_centres(self.poses)
+        acq_per_stop = np.bincount(self.stop_of, minlength=self.n_stops)
+        heard = np.zeros((n, self.n_stops), bool)
+        heard[lm[used], self.pair_stop[used]] = True
+        pairs = np.bincount(lm[used], minlength=n)
+        for k in cand:  # a loop over the point-like landmarks (a few dozen)
+            s = np.flatnonzero(heard[k])
+            if s.size == 0:
+                continue
+            v = ctr[s] - states[k]
+            ang = np.sort(np.arctan2(v[:, 1], v[:, 0]))
+            gaps = np.diff(np.r_[ang, ang[0] + 2.0 * np.pi])
+            span[k] = 2.0 * np.pi - gaps.max()
+            dist = np.linalg.norm(ctr - states[k], axis=1)
+            near = dist <= dist[s].max() + 1e-9
+            rate[k] = pairs[k] / acq_per_stop[near].sum()
+        return span, rate
+
+    def screen_corners(
+        self,
+        kinds: IntArray,
+        states: FloatArray,
+        pairs: IntArray,
+        stops: IntArray,
+        span: FloatArray,
+        rate: FloatArray,
+    ) -> tuple[IntArray, npt.NDArray[np.bool_]]:
+        """Kinds with the corners heard over more than ``corner_span`` made points, and
+        which corners to leave out: a hearing rate under ``corner_rate``, or within
+        ``corner_separation`` of a corner with more pairs (among the mapped ones)."""
+        cfg = self.cfg
+        kinds = kinds.copy()
+        wide = (kinds == CORNER) & (span > cfg.corner_span)
+        kinds[wide] = POINT
+        mapped = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops) & (kinds == CORNER)
+        screened = mapped & (rate < cfg.corner_rate)
+        if cfg.corner_separation > 0.0:
+            kept: list[int] = []
+            for k in np.flatnonzero(mapped & ~screened)[np.argsort(-pairs[mapped & ~screened])]:
+                if kept and np.linalg.norm(states[kept] - states[k], axis=1).min() < (
+                    cfg.corner_separation
+                ):
+                    screened[k] = True
+                else:
+                    kept.append(int(k))
+        return kinds, screened
 
     def crossed(self, walls: FloatArray) -> npt.NDArray[np.bool_]:
         """Which wall segments ``[x1, y1, x2, y2]`` (w, 4) a drive between consecutive stops
@@ -906,14 +1018,21 @@ class _FixedPathMapper:
         return np.any(cross, axis=1)
 
     def landmark_set(
-        self, kinds: IntArray, states: FloatArray, lm: IntArray, pairs: IntArray, stops: IntArray
+        self,
+        kinds: IntArray,
+        states: FloatArray,
+        lm: IntArray,
+        pairs: IntArray,
+        stops: IntArray,
+        keep_point: npt.NDArray[np.bool_] | None = None,
     ) -> LandmarkSet:
         """The landmarks with enough support. A wall's specular points (the feet of the
         transmitter's perpendiculars at its pairs' poses) are split where consecutive ones
         along the line are more than ``wall_gap`` apart: each run is a wall segment of its
         own (two collinear faces, or a face and echoes far along its line that another
         landmark made), with its own support; its extent spans the ``extent_quantile``
-        quantiles of its specular points."""
+        quantiles of its specular points. ``keep_point`` (optional) leaves out the point-like
+        landmarks where it is False."""
         cfg = self.cfg
         ok = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
         wall_st = np.zeros((0, 2))
@@ -947,6 +1066,8 @@ class _FixedPathMapper:
             wall_ext = np.column_stack([t[lo[keep]], t[hi[keep]]])
             wall_hits = count[keep].astype(float)
         pt = ok & (kinds != WALL)
+        if keep_point is not None:
+            pt &= keep_point
         return LandmarkSet(
             walls=wall_st,
             wall_extent=wall_ext,

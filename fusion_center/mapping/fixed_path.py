@@ -167,13 +167,19 @@ class FixedPathConfig:
         (rad). A concave corner returns its double reflection (Fig. 19) only into the
         quadrant between its two walls; a point-like landmark heard from stops spread over
         more than that quadrant (plus the path's error) is a convex edge or a scatterer
-        heard from around it, and is mapped as a point (``inf``: off).
+        heard from around it, and is mapped as a point (``inf``: off). Along the stop
+        graph's path on room_pillar the corners within 10 cm of a true one were heard over
+        47-99 degrees, convex edges and the pillar's multipath over up to 228.
     corner_rate : float
         Smallest hearing rate of a mapped corner: its pairs per acquisition made at the stops
         no farther from it than the farthest stop that heard it. A concave corner is a
         retro-reflector, heard from every stop in its quadrant within range; a multipath
         image or an alias heard from a few stops in special positions is not. Corners below
-        it are left out of the map (0: off).
+        it are left out of the map (0: off). On room_pillar (seeds 0 and 1, stop graph's
+        path) the corners within 10 cm of a true one had 0.024-0.092, the ghosts (more than
+        0.5 m from every true corner) 0.001-0.021 and the true corners 0.28-0.38 m off
+        0.007-0.012: 0.015 left 19 / 12 ghosts out but for 1 on seed 1, and 3 of those true
+        corners; 0.025 one more true corner on seed 1 (docs/mapping.md, "Ghost corners").
     corner_separation : float
         Of two corners closer than this, the one with fewer pairs is left out (the same
         corner fitted twice, e.g. from two sides at a path that is a little off), m (0: off).

@@ -180,6 +180,11 @@ class FixedPathConfig:
         0.5 m from every true corner) 0.001-0.021 and the true corners 0.28-0.38 m off
         0.007-0.012: 0.015 left 19 / 12 ghosts out but for 1 on seed 1, and 3 of those true
         corners; 0.025 one more true corner on seed 1 (docs/mapping.md, "Ghost corners").
+    corner_junction : float
+        A corner under ``corner_rate`` is kept when it lies within this of a junction of two
+        mapped walls (their lines meeting at 60 degrees or more, within ``extend`` of both
+        segments): where two walls meet the room has a corner, whatever the rate says, m
+        (0: off).
     corner_separation : float
         Of two corners closer than this, the one with fewer pairs is left out (the same
         corner fitted twice, e.g. from two sides at a path that is a little off), m (0: off).
@@ -218,6 +223,7 @@ class FixedPathConfig:
     corner_span: float = np.radians(110.0)
     corner_rate: float = 0.015
     corner_separation: float = 0.3
+    corner_junction: float = 0.0
     fitted_kinds: bool = True
     drop_crossed: bool = False
     keep_ties: bool = False
@@ -248,6 +254,7 @@ class FixedPathConfig:
             "extend": self.extend,
             "corner_rate": self.corner_rate,
             "corner_separation": self.corner_separation,
+            "corner_junction": self.corner_junction,
         }
         for name, v in non_negative.items():
             if not (np.isfinite(v) and v >= 0.0):
@@ -398,6 +405,29 @@ def _predict(
     bore = np.stack([np.cos(yaw), np.sin(yaw)], -1)
     ok = ok & (np.sum(d * bore, -1) >= np.cos(fov))
     return r, ok
+
+
+def _junctions(walls: FloatArray, reach: float) -> FloatArray:
+    """Intersections (k, 2) of the lines of every two wall segments ``[x1, y1, x2, y2]``
+    that meet at 60 degrees or more and whose segments both pass within ``reach`` (m) of the
+    intersection."""
+    p, q = walls[:, :2], walls[:, 2:]
+    length = np.maximum(np.linalg.norm(q - p, axis=1), 1e-12)
+    u = (q - p) / length[:, None]
+    i, j = np.triu_indices(len(walls), 1)
+    den = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
+    ok = np.abs(den) >= np.sin(np.radians(60.0))
+    i, j, den = i[ok], j[ok], den[ok]
+    dp = p[j] - p[i]
+    t = (dp[:, 0] * u[j, 1] - dp[:, 1] * u[j, 0]) / den
+    x = p[i] + t[:, None] * u[i]
+
+    def off(k: IntArray) -> FloatArray:
+        # distance of x from segment k
+        along = np.clip(np.sum((x - p[k]) * u[k], 1), 0.0, length[k])
+        return np.linalg.norm(p[k] + along[:, None] * u[k] - x, axis=1)
+
+    return x[(off(i) <= reach) & (off(j) <= reach)]
 
 
 def map_fixed_path(
@@ -894,14 +924,28 @@ class _FixedPathMapper:
         # the map's kinds only: ``kinds`` stay as fitted (the stop bundle adjustment refits
         # the landmarks with their fitted models)
         map_kinds, screened = self.screen_corners(kinds, states, pairs, stops, span, rate)
-        the_map = build_map(
-            self.landmark_set(map_kinds, states, lm, pairs, stops, ~screened),
-            merge_gap=cfg.wall_gap,
-            overlap_dist=cfg.overlap_dist,
-            overlap_angle=cfg.overlap_angle,
-            extend=cfg.extend,
-            fitted_kinds=cfg.fitted_kinds,
-        )
+
+        def build(keep_point: npt.NDArray[np.bool_]) -> SlamMap:
+            return build_map(
+                self.landmark_set(map_kinds, states, lm, pairs, stops, keep_point),
+                merge_gap=cfg.wall_gap,
+                overlap_dist=cfg.overlap_dist,
+                overlap_angle=cfg.overlap_angle,
+                extend=cfg.extend,
+                fitted_kinds=cfg.fitted_kinds,
+            )
+
+        the_map = build(~screened)
+        if cfg.corner_junction > 0.0 and np.any(screened) and len(the_map.walls) >= 2:
+            # a corner left out for its rate comes back where two mapped walls meet
+            low = screened & (rate < cfg.corner_rate)
+            x = _junctions(the_map.walls, cfg.extend)
+            if len(x) and np.any(low):
+                near = np.linalg.norm(states[:, None] - x[None], axis=-1).min(1)
+                back = low & (near <= cfg.corner_junction)
+                if np.any(back):
+                    screened = screened & ~back
+                    the_map = build(~screened)
         if cfg.drop_crossed and len(the_map.walls) and self.n_stops > 1:
             keep = ~self.crossed(the_map.walls)
             the_map = SlamMap(

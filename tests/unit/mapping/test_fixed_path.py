@@ -302,6 +302,7 @@ def test_bad_input_is_refused_in_one_line(kwargs, match) -> None:
         {"corner_span": np.nan},
         {"corner_rate": -0.1},
         {"corner_separation": np.inf},
+        {"corner_junction": -0.1},
     ],
 )
 def test_bad_configuration_is_refused(kwargs) -> None:
@@ -456,3 +457,19 @@ def test_of_two_corners_close_together_the_weaker_is_left_out() -> None:
     ).map.corners
     assert np.linalg.norm(one - true, axis=1).min() < 0.05, one
     assert np.linalg.norm(one - near, axis=1).min() > 0.15, one
+
+
+def test_junctions_are_where_two_mapped_walls_meet() -> None:
+    from fusion_center.mapping.fixed_path import _junctions
+
+    walls = np.array(
+        [
+            [0.0, 0.0, 3.0, 0.0],  # meets the next one 0.5 m beyond both ends: a junction
+            [3.5, 0.5, 3.5, 4.0],
+            [0.0, 1.0, 2.0, 1.1],  # nearly parallel to the first: no junction with it
+            [6.0, -3.0, 6.0, -2.0],  # its line crosses the first's 3 m beyond its end
+        ]
+    )
+    x = _junctions(walls, 1.0)
+    assert x.shape == (1, 2) and np.allclose(x[0], [3.5, 0.0]), x
+    assert len(_junctions(walls, 0.4)) == 0

@@ -26,7 +26,10 @@ registration), the landmarks are estimated directly, without a filter:
    step 3; the first stop is held: it defines the frame);
 5. the landmarks with enough pairs from at least two stops become a
    :class:`~fusion_center.mapping.features.SlamMap`
-   (:func:`~fusion_center.mapping.features.build_map`).
+   (:func:`~fusion_center.mapping.features.build_map`); a corner heard from stops spread
+   over more than a corner's quadrant is mapped as a point, and a corner heard at a low
+   rate from the stops within its hearing distance, or next to a better-supported corner,
+   is left out (``corner_span``, ``corner_rate``, ``corner_separation``).
 
 Steps 3 and 4 minimise, over the landmark states :math:`\ell_k` (and, with the
 refinement, the stop corrections :math:`c_s = (\delta x, \delta y, \delta\psi)`, stop 0

@@ -26,7 +26,10 @@ registration), the landmarks are estimated directly, without a filter:
    step 3; the first stop is held: it defines the frame);
 5. the landmarks with enough pairs from at least two stops become a
    :class:`~fusion_center.mapping.features.SlamMap`
-   (:func:`~fusion_center.mapping.features.build_map`).
+   (:func:`~fusion_center.mapping.features.build_map`); a corner heard from stops spread
+   over more than a corner's quadrant is mapped as a point, and a corner heard at a low
+   rate from the stops within its hearing distance, or next to a better-supported corner,
+   is left out (``corner_span``, ``corner_rate``, ``corner_separation``).
 
 Steps 3 and 4 minimise, over the landmark states :math:`\ell_k` (and, with the
 refinement, the stop corrections :math:`c_s = (\delta x, \delta y, \delta\psi)`, stop 0
@@ -162,6 +165,32 @@ class FixedPathConfig:
         three stops). 1 (a chi-square difference of 2): no wrong decision at 1.5-4 m in that
         probe, with points at 2.5 m undecided in 4 of 6 seeds; 15 of 67 and 10 of 61 mapped
         point-like landmarks undecided on room_pillar seeds 0 and 1 at the true path.
+    corner_span : float
+        Largest angle, about a corner landmark, that the stops which heard it may span
+        (rad). A concave corner returns its double reflection (Fig. 19) only into the
+        quadrant between its two walls; a point-like landmark heard from stops spread over
+        more than that quadrant (plus the path's error) is a convex edge or a scatterer
+        heard from around it, and is mapped as a point (``inf``: off). Along the stop
+        graph's path on room_pillar the corners within 10 cm of a true one were heard over
+        47-99 degrees, convex edges and the pillar's multipath over up to 228.
+    corner_rate : float
+        Smallest hearing rate of a mapped corner: its pairs per acquisition made at the stops
+        no farther from it than the farthest stop that heard it. A concave corner is a
+        retro-reflector, heard from every stop in its quadrant within range; a multipath
+        image or an alias heard from a few stops in special positions is not. Corners below
+        it are left out of the map (0: off). On room_pillar (seeds 0 and 1, stop graph's
+        path) the corners within 10 cm of a true one had 0.024-0.092, the ghosts (more than
+        0.5 m from every true corner) 0.001-0.021 and the true corners 0.28-0.38 m off
+        0.007-0.012: 0.015 left 19 / 12 ghosts out but for 1 on seed 1, and 3 of those true
+        corners; 0.025 one more true corner on seed 1 (docs/mapping.md, "Ghost corners").
+    corner_junction : float
+        A corner under ``corner_rate`` is kept when it lies within this of a junction of two
+        mapped walls (their lines meeting at 60 degrees or more, within ``extend`` of both
+        segments): where two walls meet the room has a corner, whatever the rate says, m
+        (0: off).
+    corner_separation : float
+        Of two corners closer than this, the one with fewer pairs is left out (the same
+        corner fitted twice, e.g. from two sides at a path that is a little off), m (0: off).
     fitted_kinds : bool
         Corner or point as fitted (the better Cauchy cost of the two models over all the
         landmark's echoes), not by :func:`~fusion_center.mapping.features.build_map`'s
@@ -194,6 +223,10 @@ class FixedPathConfig:
     overlap_angle: float = np.radians(12.0)
     extend: float = 1.0
     kind_margin: float = 1.0
+    corner_span: float = np.radians(110.0)
+    corner_rate: float = 0.015
+    corner_separation: float = 0.3
+    corner_junction: float = 0.0
     fitted_kinds: bool = True
     drop_crossed: bool = False
     keep_ties: bool = False
@@ -222,6 +255,9 @@ class FixedPathConfig:
             "overlap_dist": self.overlap_dist,
             "overlap_angle": self.overlap_angle,
             "extend": self.extend,
+            "corner_rate": self.corner_rate,
+            "corner_separation": self.corner_separation,
+            "corner_junction": self.corner_junction,
         }
         for name, v in non_negative.items():
             if not (np.isfinite(v) and v >= 0.0):
@@ -235,6 +271,8 @@ class FixedPathConfig:
                 "FixedPathConfig.assoc_gate_start must be >= assoc_gate (the gate shrinks), "
                 f"got {self.assoc_gate_start!r} < {self.assoc_gate!r}"
             )
+        if not self.corner_span > 0.0:
+            raise ValueError(f"FixedPathConfig.corner_span must be > 0, got {self.corner_span!r}")
         if not self.wall_gap > 0.0:
             raise ValueError(f"FixedPathConfig.wall_gap must be > 0, got {self.wall_gap!r}")
         for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds"):
@@ -273,6 +311,14 @@ class FixedPathMap:
     association : ndarray of int, shape (m,)
         Landmark (index into ``kinds``) of every echo pair, in the order of the pairs
         concatenated over the acquisitions; -1: none (empty when no landmark was formed).
+    view_span, hearing_rate : ndarray, shape like ``kinds``
+        Of every point-like landmark (NaN for walls): the angle about it spanned by the stops
+        that heard it (rad) and its pairs per acquisition at the stops within the farthest
+        hearing distance (:meth:`_FixedPathMapper.corner_evidence`).
+    screened : ndarray of bool, shape like ``kinds``
+        The corners left out of the map by ``corner_rate`` or ``corner_separation``
+        (``kinds`` are as fitted: a corner the map holds as a point by ``corner_span`` is
+        still a corner there).
     """
 
     map: SlamMap
@@ -284,6 +330,9 @@ class FixedPathMap:
     stop_corrections: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     undecided: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     association: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    view_span: FloatArray = field(default_factory=lambda: np.zeros(0))
+    hearing_rate: FloatArray = field(default_factory=lambda: np.zeros(0))
+    screened: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
 
 
 def _world_array(poses: FloatArray, antennas: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -359,6 +408,29 @@ def _predict(
     bore = np.stack([np.cos(yaw), np.sin(yaw)], -1)
     ok = ok & (np.sum(d * bore, -1) >= np.cos(fov))
     return r, ok
+
+
+def _junctions(walls: FloatArray, reach: float) -> FloatArray:
+    """Intersections (k, 2) of the lines of every two wall segments ``[x1, y1, x2, y2]``
+    that meet at 60 degrees or more and whose segments both pass within ``reach`` (m) of the
+    intersection."""
+    p, q = walls[:, :2], walls[:, 2:]
+    length = np.maximum(np.linalg.norm(q - p, axis=1), 1e-12)
+    u = (q - p) / length[:, None]
+    i, j = np.triu_indices(len(walls), 1)
+    den = u[i, 0] * u[j, 1] - u[i, 1] * u[j, 0]
+    ok = np.abs(den) >= np.sin(np.radians(60.0))
+    i, j, den = i[ok], j[ok], den[ok]
+    dp = p[j] - p[i]
+    t = (dp[:, 0] * u[j, 1] - dp[:, 1] * u[j, 0]) / den
+    x = p[i] + t[:, None] * u[i]
+
+    def off(k: IntArray) -> FloatArray:
+        # distance of x from segment k
+        along = np.clip(np.sum((x - p[k]) * u[k], 1), 0.0, length[k])
+        return np.linalg.norm(p[k] + along[:, None] * u[k] - x, axis=1)
+
+    return x[(off(i) <= reach) & (off(j) <= reach)]
 
 
 def map_fixed_path(
@@ -851,14 +923,32 @@ class _FixedPathMapper:
         lm = self.associate(kinds, states, cfg.assoc_gate)
         kinds, states = self.fit(kinds, states, lm)
         pairs, stops = self.support(kinds.size, lm)
-        the_map = build_map(
-            self.landmark_set(kinds, states, lm, pairs, stops),
-            merge_gap=cfg.wall_gap,
-            overlap_dist=cfg.overlap_dist,
-            overlap_angle=cfg.overlap_angle,
-            extend=cfg.extend,
-            fitted_kinds=cfg.fitted_kinds,
-        )
+        span, rate = self.corner_evidence(kinds, states, lm)
+        # the map's kinds only: ``kinds`` stay as fitted (the stop bundle adjustment refits
+        # the landmarks with their fitted models)
+        map_kinds, screened = self.screen_corners(kinds, states, pairs, stops, span, rate)
+
+        def build(keep_point: npt.NDArray[np.bool_]) -> SlamMap:
+            return build_map(
+                self.landmark_set(map_kinds, states, lm, pairs, stops, keep_point),
+                merge_gap=cfg.wall_gap,
+                overlap_dist=cfg.overlap_dist,
+                overlap_angle=cfg.overlap_angle,
+                extend=cfg.extend,
+                fitted_kinds=cfg.fitted_kinds,
+            )
+
+        the_map = build(~screened)
+        if cfg.corner_junction > 0.0 and np.any(screened) and len(the_map.walls) >= 2:
+            # a corner left out for its rate comes back where two mapped walls meet
+            low = screened & (rate < cfg.corner_rate)
+            x = _junctions(the_map.walls, cfg.extend)
+            if len(x) and np.any(low):
+                near = np.linalg.norm(states[:, None] - x[None], axis=-1).min(1)
+                back = low & (near <= cfg.corner_junction)
+                if np.any(back):
+                    screened = screened & ~back
+                    the_map = build(~screened)
         if cfg.drop_crossed and len(the_map.walls) and self.n_stops > 1:
             keep = ~self.crossed(the_map.walls)
             the_map = SlamMap(
@@ -879,7 +969,82 @@ class _FixedPathMapper:
             stop_corrections=self.corr.copy(),
             undecided=self.undecided.copy(),
             association=lm.astype(np.int64),
+            view_span=span,
+            hearing_rate=rate,
+            screened=screened,
         )
+
+    def corner_evidence(
+        self, kinds: IntArray, states: FloatArray, lm: IntArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """View span and hearing rate of every point-like landmark (NaN for walls).
+
+        The span is the smallest angle about the landmark that holds the directions to the
+        mean transmitter positions of the stops that heard it (``2 pi`` minus the largest
+        gap between those directions), rad. The hearing rate is its associated pairs over
+        the acquisitions made at the stops whose mean transmitter position is no farther from
+        it than the farthest of those stops: the fraction of the looks from within its
+        hearing distance that heard it.
+
+        Beyond the chapter: the chapter's double-reflection model (Fig. 19) says where a
+        corner's echo comes from, not who hears it; the view-span test is its visibility
+        region (a retro-reflector within its two walls' quadrant), the rate a detection
+        frequency test in the spirit of a track's existence score (Mullane et al., Random
+        finite sets for robot mapping and SLAM, 2011, detection probability per view).
+        """
+        n = kinds.size
+        span = np.full(n, np.nan)
+        rate = np.full(n, np.nan)
+        used = lm >= 0
+        cand = np.flatnonzero(kinds != WALL)
+        if cand.size == 0 or not np.any(used):
+            return span, rate
+        ctr = self.stop_centres(self.poses)
+        acq_per_stop = np.bincount(self.stop_of, minlength=self.n_stops)
+        heard = np.zeros((n, self.n_stops), bool)
+        heard[lm[used], self.pair_stop[used]] = True
+        pairs = np.bincount(lm[used], minlength=n)
+        for k in cand:  # a loop over the point-like landmarks (a few dozen)
+            s = np.flatnonzero(heard[k])
+            if s.size == 0:
+                continue
+            v = ctr[s] - states[k]
+            ang = np.sort(np.arctan2(v[:, 1], v[:, 0]))
+            gaps = np.diff(np.r_[ang, ang[0] + 2.0 * np.pi])
+            span[k] = 2.0 * np.pi - gaps.max()
+            dist = np.linalg.norm(ctr - states[k], axis=1)
+            near = dist <= dist[s].max() + 1e-9
+            rate[k] = pairs[k] / acq_per_stop[near].sum()
+        return span, rate
+
+    def screen_corners(
+        self,
+        kinds: IntArray,
+        states: FloatArray,
+        pairs: IntArray,
+        stops: IntArray,
+        span: FloatArray,
+        rate: FloatArray,
+    ) -> tuple[IntArray, npt.NDArray[np.bool_]]:
+        """Kinds with the corners heard over more than ``corner_span`` made points, and
+        which corners to leave out: a hearing rate under ``corner_rate``, or within
+        ``corner_separation`` of a corner with more pairs (among the mapped ones)."""
+        cfg = self.cfg
+        kinds = kinds.copy()
+        wide = (kinds == CORNER) & (span > cfg.corner_span)
+        kinds[wide] = POINT
+        mapped = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops) & (kinds == CORNER)
+        screened = mapped & (rate < cfg.corner_rate)
+        if cfg.corner_separation > 0.0:
+            kept: list[int] = []
+            for k in np.flatnonzero(mapped & ~screened)[np.argsort(-pairs[mapped & ~screened])]:
+                if kept and np.linalg.norm(states[kept] - states[k], axis=1).min() < (
+                    cfg.corner_separation
+                ):
+                    screened[k] = True
+                else:
+                    kept.append(int(k))
+        return kinds, screened
 
     def crossed(self, walls: FloatArray) -> npt.NDArray[np.bool_]:
         """Which wall segments ``[x1, y1, x2, y2]`` (w, 4) a drive between consecutive stops
@@ -906,14 +1071,21 @@ class _FixedPathMapper:
         return np.any(cross, axis=1)
 
     def landmark_set(
-        self, kinds: IntArray, states: FloatArray, lm: IntArray, pairs: IntArray, stops: IntArray
+        self,
+        kinds: IntArray,
+        states: FloatArray,
+        lm: IntArray,
+        pairs: IntArray,
+        stops: IntArray,
+        keep_point: npt.NDArray[np.bool_] | None = None,
     ) -> LandmarkSet:
         """The landmarks with enough support. A wall's specular points (the feet of the
         transmitter's perpendiculars at its pairs' poses) are split where consecutive ones
         along the line are more than ``wall_gap`` apart: each run is a wall segment of its
         own (two collinear faces, or a face and echoes far along its line that another
         landmark made), with its own support; its extent spans the ``extent_quantile``
-        quantiles of its specular points."""
+        quantiles of its specular points. ``keep_point`` (optional) leaves out the point-like
+        landmarks where it is False."""
         cfg = self.cfg
         ok = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
         wall_st = np.zeros((0, 2))
@@ -947,6 +1119,8 @@ class _FixedPathMapper:
             wall_ext = np.column_stack([t[lo[keep]], t[hi[keep]]])
             wall_hits = count[keep].astype(float)
         pt = ok & (kinds != WALL)
+        if keep_point is not None:
+            pt &= keep_point
         return LandmarkSet(
             walls=wall_st,
             wall_extent=wall_ext,

@@ -298,6 +298,11 @@ def test_bad_input_is_refused_in_one_line(kwargs, match) -> None:
         {"assoc_gate_start": 0.05, "assoc_gate": 0.15},
         {"fitted_kinds": "no"},
         {"refine_path": 1},
+        {"corner_span": 0.0},
+        {"corner_span": np.nan},
+        {"corner_rate": -0.1},
+        {"corner_separation": np.inf},
+        {"corner_junction": -0.1},
     ],
 )
 def test_bad_configuration_is_refused(kwargs) -> None:
@@ -369,3 +374,102 @@ def test_a_wall_the_robot_drives_through_is_dropped() -> None:
     # not the other (y = 1.5 .. 3.5, from the stops at x = 1.5 only)
     assert across(FixedPathConfig(min_group_pairs=1)) == 2
     assert across(FixedPathConfig(min_group_pairs=1, drop_crossed=True)) == 1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_corner_heard_from_all_around_is_mapped_as_a_point(seed) -> None:
+    # a concave corner echoes only into the quadrant between its walls: a point-like
+    # landmark heard from stops around it (here over 240 degrees) is an edge or a scatterer
+    stops, spot = [[0.0, 0.0], [3.0, 0.0], [1.5, 2.5]], [1.5, 0.9]
+    room = _single(corner=spot)
+    off = _map_from_stops(room, stops, seed, FixedPathConfig(corner_span=np.inf))
+    assert len(off.map.corners) == 1 and len(off.map.points) == 0
+    res = _map_from_stops(room, stops, seed)
+    assert len(res.map.corners) == 0, res.map.corners
+    assert len(res.map.points) == 1 and np.linalg.norm(res.map.points[0] - spot) < 0.05
+    k = int(np.argmin(np.linalg.norm(res.states - spot, axis=1)))
+    assert res.view_span[k] > np.radians(200.0)
+    assert np.array_equal(res.kinds, off.kinds)  # the fitted kinds are not changed
+
+
+def _with_ghost(seed: int, looks: int):
+    """A corner heard wherever it is in the beam, and a second one (a multipath image)
+    heard from the first two stops only, in ``looks`` consecutive headings of each."""
+    stops = [[0.0, 0.0], [0.0, 1.0], [0.5, -0.8], [1.0, 0.5]]
+    true, ghost = [3.0, 0.2], [2.0, 2.5]
+    poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
+    rng = np.random.default_rng(seed)
+    pairs = [echo_pairs(_single(corner=true), p, ANTENNAS, rng) for p in poses]
+    for s in (0, 1):
+        seen = [
+            i
+            for i in range(s * TURN, (s + 1) * TURN)
+            if len(echo_pairs(_single(corner=ghost), poses[i], ANTENNAS, rng))
+        ]
+        for i in seen[:looks]:
+            z = np.vstack([pairs[i], echo_pairs(_single(corner=ghost), poses[i], ANTENNAS, rng)])
+            pairs[i] = z[np.argsort(z.sum(1))]
+    grouper = KalmanEchoGrouper()
+    ids = []
+    for i, z in enumerate(pairs):
+        if i % TURN == 0:
+            grouper.reset()
+        ids.append(grouper.step(z))
+    return poses, pairs, ids, np.array(true), np.array(ghost)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_corner_heard_at_a_low_rate_is_left_out(seed) -> None:
+    poses, pairs, ids, true, ghost = _with_ghost(seed, looks=5)
+    off = map_fixed_path(pairs, ids, poses, ANTENNAS, FixedPathConfig(corner_rate=0.0))
+    d_off = np.linalg.norm(off.map.corners - ghost, axis=1)
+    assert np.any(d_off < 0.1), off.map.corners  # mapped without the rate test
+    res = map_fixed_path(pairs, ids, poses, ANTENNAS, FixedPathConfig(corner_rate=0.08))
+    assert len(res.map.corners) == 1 and np.linalg.norm(res.map.corners[0] - true) < 0.05
+    # the rate: pairs per acquisition at the stops within the farthest that heard it
+    k_true = int(np.argmin(np.linalg.norm(res.states - true, axis=1)))
+    k_ghost = int(np.argmin(np.linalg.norm(res.states - ghost, axis=1)))
+    assert res.hearing_rate[k_ghost] < 0.08 < res.hearing_rate[k_true]
+    assert res.screened[k_ghost] and not res.screened[k_true]
+
+
+def test_of_two_corners_close_together_the_weaker_is_left_out() -> None:
+    poses, pairs, ids, true, _ = _with_ghost(0, looks=5)
+    near = true + np.array([0.25, 0.0])
+    rng = np.random.default_rng(7)
+    # the same corner fitted twice: a second one 0.25 m behind it, heard from two stops
+    for i in range(2 * TURN):
+        extra = echo_pairs(_single(corner=near), poses[i], ANTENNAS, rng)
+        z = np.vstack([pairs[i], extra])
+        pairs[i] = z[np.argsort(z.sum(1))]
+    grouper = KalmanEchoGrouper()
+    ids = []
+    for i, z in enumerate(pairs):
+        if i % TURN == 0:
+            grouper.reset()
+        ids.append(grouper.step(z))
+    cfg = FixedPathConfig(corner_rate=0.0, corner_separation=0.0)
+    both = map_fixed_path(pairs, ids, poses, ANTENNAS, cfg).map.corners
+    assert np.linalg.norm(both - near, axis=1).min() < 0.05, both
+    assert np.linalg.norm(both - true, axis=1).min() < 0.05, both
+    one = map_fixed_path(
+        pairs, ids, poses, ANTENNAS, FixedPathConfig(corner_rate=0.0, corner_separation=0.3)
+    ).map.corners
+    assert np.linalg.norm(one - true, axis=1).min() < 0.05, one
+    assert np.linalg.norm(one - near, axis=1).min() > 0.15, one
+
+
+def test_junctions_are_where_two_mapped_walls_meet() -> None:
+    from fusion_center.mapping.fixed_path import _junctions
+
+    walls = np.array(
+        [
+            [0.0, 0.0, 3.0, 0.0],  # meets the next one 0.5 m beyond both ends: a junction
+            [3.5, 0.5, 3.5, 4.0],
+            [0.0, 1.0, 2.0, 1.1],  # nearly parallel to the first: no junction with it
+            [6.0, -3.0, 6.0, -2.0],  # its line crosses the first's 3 m beyond its end
+        ]
+    )
+    x = _junctions(walls, 1.0)
+    assert x.shape == (1, 2) and np.allclose(x[0], [3.5, 0.0]), x
+    assert len(_junctions(walls, 0.4)) == 0

@@ -163,6 +163,41 @@ class MapperConfig:
             )
 
 
+def scaled_min_pairs(
+    min_pairs: int, odometry: npt.ArrayLike, reference_step: float, drive: float = 0.1
+) -> int:
+    """Echo pairs a smoothed landmark needs (:meth:`EchoSlamMapper.smooth`) for a robot
+    turning in its own steps: ``ceil(min_pairs * reference_step / step)``, at most
+    ``min_pairs``, at least 1.
+
+    A wall is heard over a fixed span of headings at each stop (the horns' beam around the
+    foot of the perpendicular, Fig. 19 of the CoLOR chapter), so the pairs it gives scale with
+    the number of headings in that span: ``min_pairs`` (8) was measured on room_pillar's
+    3-degree steps, where a wall gives 20-25 pairs a stop; at corridor_L_sparse's 15 degrees it
+    gives 4-6, and the second leg's inner wall, seen from two stops with 7 pairs, was left out
+    (beyond the chapter: a support rule of this implementation).
+
+    Parameters
+    ----------
+    min_pairs : int
+        The count at ``reference_step``.
+    odometry : array_like, shape (n, 3)
+        ``(dx, dy, dyaw)`` of every step (m, m, rad); the steps that move at most ``drive``
+        (m) are the turning steps, and their median ``|dyaw|`` is ``step``.
+    reference_step : float
+        rad, > 0.
+    """
+    if not reference_step > 0.0:
+        raise ValueError(f"reference_step must be > 0, got {reference_step}")
+    odo = np.asarray(odometry, float).reshape(-1, 3)
+    turn = np.abs(odo[np.hypot(odo[:, 0], odo[:, 1]) <= drive, 2])
+    turn = turn[turn > 0.0]
+    if turn.size == 0:
+        return int(min_pairs)
+    step = float(np.median(turn))
+    return int(min(min_pairs, max(1, np.ceil(min_pairs * reference_step / step - 1e-9))))
+
+
 def echo_extractor(
     config: MapperConfig, *, fs: float, t0: float, bandwidth: float
 ) -> EnvelopePeakEchoExtractor:
@@ -484,6 +519,7 @@ class EchoSlamMapper:
         overlap_dist: float = 0.3,
         overlap_angle: float = np.radians(12.0),
         extend: float = 1.0,
+        min_pairs_step: float | None = np.radians(3.0),
     ) -> tuple[SlamMap, FloatArray] | None:
         """Map and path after joint least-squares smoothing of the whole run (graph SLAM,
         :class:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother`; beyond the
@@ -504,6 +540,9 @@ class EchoSlamMapper:
             (m, rad) and longest wall extension (m). Measured on room_pillar (3 filter seeds):
             with the support rule they cut the walls that match no true face from 72-81 to
             39-55 while finding 7-10 of 28 faces (the filter's map: 7-11).
+        min_pairs_step : float or None
+            The turning step (rad) at which ``min_pairs`` holds; a robot turning in coarser
+            steps needs fewer (:func:`scaled_min_pairs`; None: ``min_pairs`` as given).
 
         Returns
         -------
@@ -540,6 +579,8 @@ class EchoSlamMapper:
         poses = np.array([self._final[h[0]] for h in hist])
         odo = np.array([np.zeros(3)] + [np.asarray(h[1], float) for h in hist[1:]])
         res = smoother.smooth(poses, odo, [h[2] for h in hist], [h[3] for h in hist], kinds, states)
+        if min_pairs_step is not None:
+            min_pairs = scaled_min_pairs(min_pairs, odo, min_pairs_step, self.config.drive_reset)
         the_map = build_map(
             smoothed_landmark_set(res, min_pairs=min_pairs, min_stops=min_stops),
             overlap_dist=overlap_dist,

@@ -31,6 +31,12 @@ FloatArray = npt.NDArray[np.float64]
 
 #: how many of the last stops' turn corrections :attr:`EchoSlamMapper.turn_corrections` keeps
 TURN_CORRECTIONS_KEPT = 1000
+#: ``SmootherConfig.stop_gate`` of :meth:`EchoSlamMapper.smooth` with state-space association
+#: (m; measurement space: 0, off). corridor_L_sparse seeds 1 / 3 (15-degree steps): the third
+#: stop's side walls and the second leg's inner wall mapped, outline 60 -> 66 / 65 %;
+#: room_pillar seed 0 with the filter (3-degree steps, measurement space): 18 m more wall
+#: matching no face, 6 more false corners (docs/mapping.md, twelfth round).
+STATE_STOP_GATE = 0.6
 
 
 def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
@@ -528,7 +534,8 @@ class EchoSlamMapper:
         Parameters
         ----------
         config : SmootherConfig, optional
-            Defaults to the filter's range and slip noise and field of view.
+            Defaults to :meth:`smoother_config` (the filter's range and slip noise and field
+            of view; the joint per-stop association with state space).
         min_hits : int
             Echoes a landmark of the heaviest particle needs to enter the smoothing.
         min_pairs, min_stops : int
@@ -561,16 +568,7 @@ class EchoSlamMapper:
         if kinds.size == 0:
             return None
         states = np.vstack([ls.walls.reshape(-1, 2), ls.points.reshape(-1, 2)])
-        fc = f.config
-        cfg = config or SmootherConfig(
-            range_sigma=fc.range_sigma,
-            slip_translation=fc.slip_translation,
-            slip_rotation=fc.slip_rotation,
-            slip_heading_per_metre=fc.slip_heading_per_metre,
-            slip_floor=fc.slip_floor,
-            fov=fc.fov,
-            drive_distance=self.config.drive_reset,
-        )
+        cfg = config or self.smoother_config()
         b = int(np.argmax(f.logw))
         smoother = LeastSquaresPathMapSmoother(
             f.antennas, cfg, bias=float(f.bias[b]), mount=float(f.mount[b])
@@ -588,6 +586,24 @@ class EchoSlamMapper:
             extend=extend,
         )
         return the_map, np.column_stack([t, res.poses])
+
+    def smoother_config(self) -> SmootherConfig:
+        """:meth:`smooth`'s default :class:`SmootherConfig`: the filter's range and slip noise
+        and field of view, and the joint per-stop association (``stop_gate``,
+        :data:`STATE_STOP_GATE`) with state-space association only."""
+        fc = self.filter.config
+        return SmootherConfig(
+            range_sigma=fc.range_sigma,
+            slip_translation=fc.slip_translation,
+            slip_rotation=fc.slip_rotation,
+            slip_heading_per_metre=fc.slip_heading_per_metre,
+            slip_floor=fc.slip_floor,
+            fov=fc.fov,
+            drive_distance=self.config.drive_reset,
+            # on room_pillar's measurement-space echo tracks (filter seed 0, 3-degree steps)
+            # the joint association added 18 m of wall matching no face and 6 false corners
+            stop_gate=STATE_STOP_GATE if not self.measurement_space else 0.0,
+        )
 
     def map(self, min_hits: int = 8) -> SlamMap:
         """The current map of the best particle (:func:`~fusion_center.mapping.features.build_map`

@@ -94,9 +94,11 @@ class SmootherConfig:
         of one stop's pairs lie within ``gate`` of one common range offset and no pair of
         that stop is associated with the landmark already
         (:meth:`LeastSquaresPathMapSmoother._associate_by_stop`; 0 or anything up to
-        ``gate``: off). corridor_L_sparse seed 1: the third stop's 11 echoes of the two
-        side walls were 0.4-0.5 m from their prediction (the walls turned by the first
-        stop's heading drift, the stop placed by odometry) and never used.
+        ``gate``: off, the default; :meth:`EchoSlamMapper.smooth
+        <fusion_center.mapping.pipeline.EchoSlamMapper.smooth>` sets 0.6 m with state-space
+        association). corridor_L_sparse seed 1: the third stop's 11 echoes of the two side
+        walls were 0.4-0.5 m from their prediction (the walls turned by the first stop's
+        heading drift, the stop placed by odometry) and never used.
     stop_min_pairs : int
         Pairs a stop's joint association needs (>= 1).
     """
@@ -120,7 +122,7 @@ class SmootherConfig:
     merge_point_dist: float = 0.0
     refit_kinds: bool = False
     kind_switch_ratio: float = 0.7
-    stop_gate: float = 0.6
+    stop_gate: float = 0.0
     stop_min_pairs: int = 3
 
     def __post_init__(self) -> None:

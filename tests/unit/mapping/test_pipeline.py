@@ -140,3 +140,18 @@ def test_the_support_a_smoothed_landmark_needs_follows_the_turning_step() -> Non
     assert scaled_min_pairs(8, _turns(90.0), ref) == 1
     with pytest.raises(ValueError, match="reference_step"):
         scaled_min_pairs(8, _turns(3.0), 0.0)
+
+
+def test_the_joint_per_stop_association_is_for_state_space_only() -> None:
+    from fusion_center.mapping import SlamConfig
+    from fusion_center.mapping.pipeline import STATE_STOP_GATE
+
+    def mapper(association: str) -> EchoSlamMapper:
+        slam = SlamConfig(association=association)
+        return EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
+
+    # measured: with room_pillar's measurement-space tracks it added walls matching no face
+    assert mapper("state").smoother_config().stop_gate == STATE_STOP_GATE > 0.25
+    assert mapper("measurement").smoother_config().stop_gate == 0.0
+    cfg = mapper("state").smoother_config()
+    assert cfg.range_sigma == mapper("state").filter.config.range_sigma

@@ -459,8 +459,9 @@ class LeastSquaresPathMapSmoother:
         every echo of that wall from that stop 0.3-0.5 m from its prediction, beyond ``gate``,
         and the smoother never sees them. Here the candidates of a (stop, landmark) group,
         every unassociated pair within ``stop_gate`` of the landmark's prediction at both
-        receivers, are tested together: their median residual is the common offset, and the
-        pairs within ``gate`` of it are associated when at least ``stop_min_pairs`` are and
+        receivers, are tested together: the median of their mean (over the two receivers)
+        range residuals is the common offset, and the pairs within ``gate`` of it at both
+        receivers are associated when at least ``stop_min_pairs`` are and
         the stop has no pair associated with that landmark already (then the landmark's echo
         from there is known and the rest are other echoes). A pair that qualifies for several
         landmarks takes the one with the smallest offset. This is the joint compatibility

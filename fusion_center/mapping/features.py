@@ -356,6 +356,8 @@ def close_outline(
     witness_range: float = 5.0,
     witness_gap: float = 0.3,
     witness_hide: float = 0.3,
+    convex_reach: float = 3.0,
+    convex_trim: float = 2.0,
 ) -> SlamMap:
     """Close the outline: extend mapped walls that meet to their intersection (the corner
     the room must have there) and add the concave corners this implies.
@@ -367,7 +369,8 @@ def close_outline(
     * their lines meet at ``min_angle`` or more (at 60 degrees a ghost face at 71 degrees
       closed with a box's face on room_pillar);
     * ``X`` lies beyond (or at most ``overshoot`` inside) one end of each, at most ``reach``
-      beyond it;
+      beyond it; for a convex corner at most ``convex_reach`` beyond or ``convex_trim``
+      inside (see below);
     * each wall approaches ``X`` from the same side of the other as the robot saw that one
       from (:func:`free_side`): both from the free side is a concave (room) corner, both
       from behind a convex one (the inner corner of an L, a pillar's edge); mixed is no
@@ -384,6 +387,13 @@ def close_outline(
       space between an object and a wall);
     * no mapped wall lies between ``X`` and the poses the two walls were seen from (two
       multipath ghosts beyond a room wall can meet at right angles).
+
+    A wall of a convex corner that runs past ``X`` runs into the free space the robot saw
+    the other wall across, where no wall stands: it is the echo of the corner's edge taken
+    for the wall (corridor_L_sparse: the second leg's inner wall mapped 0.6-1.2 m into the
+    first leg from the stop facing the edge), so it is trimmed back to ``X`` up to
+    ``convex_trim``. A concave corner's wall that runs past ``X`` may be a room wall going
+    on past an object's face, so its trim stays at ``overshoot``.
 
     Each wall end takes at most one closure, the shortest extensions first (those with a
     mapped corner within ``confirm`` of ``X``, the double reflection that confirms it,
@@ -426,6 +436,11 @@ def close_outline(
     witness_hide : float
         A mapped corner or point this close to a position's line of sight to the foot hides
         the foot from it, m (default 0.3).
+    convex_reach : float
+        Largest extension to a convex corner, m (default 3.0: the L's inner corner lies 2.4-
+        2.5 m beyond the first leg's mapped inner wall on corridor_L_sparse).
+    convex_trim : float
+        Largest trim of a wall running past a convex corner, m (default 2.0).
 
     Returns
     -------
@@ -447,6 +462,8 @@ def close_outline(
         ("witness_range", witness_range, witness_range >= 0.0),
         ("witness_gap", witness_gap, witness_gap >= 0.0),
         ("witness_hide", witness_hide, witness_hide >= 0.0),
+        ("convex_reach", convex_reach, convex_reach > 0.0),
+        ("convex_trim", convex_trim, convex_trim >= 0.0),
     ):
         if not ok_:  # NaN fails too
             raise ValueError(f"close_outline: {name} out of range (got {value})")
@@ -480,12 +497,17 @@ def close_outline(
     end = a > 0.5 * length[:, None]  # the end next to X: True = (x2, y2)
     d = np.where(end[..., None], u[:, None, :], -u[:, None, :])  # wall i's way to X
     approach = np.einsum("ijk,jk->ij", d, nf)  # < 0: i comes from j's free side
-    ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= reach) & (beyond >= -overshoot)
-    # a trim only on walls longer than two trims: two would leave a few centimetres of wall
-    ok &= (beyond >= 0.0) | (length[:, None] > 2.0 * overshoot)
-    ok &= ok.T
     concave = (approach < 0) & (approach.T < 0)
     convex = (approach > 0) & (approach.T > 0)
+    # a convex corner's walls may reach farther and be trimmed more: past X a wall of a
+    # convex corner would stand in the free space the other wall was seen across
+    limit = np.where(convex, convex_reach, reach)
+    trim = np.where(convex, convex_trim, overshoot)
+    ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= limit) & (beyond >= -trim)
+    # a trim only on walls longer than two trims: two would leave a few centimetres of wall
+    ok &= (beyond >= 0.0) | (length[:, None] > -2.0 * np.minimum(beyond, 0.0))
+    ok &= (beyond >= 0.0) | (length[:, None] > 2.0 * overshoot)
+    ok &= ok.T
     ok &= (concave | convex) & np.triu(np.ones_like(ok), 1)
     ok &= (np.abs(nf).sum(1) > 0)[:, None] & (np.abs(nf).sum(1) > 0)[None, :]
     ii, jj = np.nonzero(ok)

@@ -31,6 +31,12 @@ FloatArray = npt.NDArray[np.float64]
 
 #: how many of the last stops' turn corrections :attr:`EchoSlamMapper.turn_corrections` keeps
 TURN_CORRECTIONS_KEPT = 1000
+#: ``SmootherConfig.stop_gate`` of :meth:`EchoSlamMapper.smooth` with state-space association
+#: (m; measurement space: 0, off). corridor_L_sparse seeds 1 / 3 (15-degree steps): the third
+#: stop's side walls and the second leg's inner wall mapped, outline 60 -> 66 / 65 %;
+#: room_pillar seed 0 with the filter (3-degree steps, measurement space): 18 m more wall
+#: matching no face, 6 more false corners (docs/mapping.md, twelfth round).
+STATE_STOP_GATE = 0.6
 
 
 def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
@@ -161,6 +167,41 @@ class MapperConfig:
             raise ValueError(
                 f"MapperConfig.turn_closure_min_links must be an integer >= 1, got {k!r}"
             )
+
+
+def scaled_min_pairs(
+    min_pairs: int, odometry: npt.ArrayLike, reference_step: float, drive: float = 0.1
+) -> int:
+    """Echo pairs a smoothed landmark needs (:meth:`EchoSlamMapper.smooth`) for a robot
+    turning in its own steps: ``ceil(min_pairs * reference_step / step)``, at most
+    ``min_pairs``, at least 1.
+
+    A wall is heard over a fixed span of headings at each stop (the horns' beam around the
+    foot of the perpendicular, Fig. 19 of the CoLOR chapter), so the pairs it gives scale with
+    the number of headings in that span: ``min_pairs`` (8) was measured on room_pillar's
+    3-degree steps, where a wall gives 20-25 pairs a stop; at corridor_L_sparse's 15 degrees it
+    gives 4-6, and the second leg's inner wall, seen from two stops with 7 pairs, was left out
+    (beyond the chapter: a support rule of this implementation).
+
+    Parameters
+    ----------
+    min_pairs : int
+        The count at ``reference_step``.
+    odometry : array_like, shape (n, 3)
+        ``(dx, dy, dyaw)`` of every step (m, m, rad); the steps that move at most ``drive``
+        (m) are the turning steps, and their median ``|dyaw|`` is ``step``.
+    reference_step : float
+        rad, > 0.
+    """
+    if not reference_step > 0.0:
+        raise ValueError(f"reference_step must be > 0, got {reference_step}")
+    odo = np.asarray(odometry, float).reshape(-1, 3)
+    turn = np.abs(odo[np.hypot(odo[:, 0], odo[:, 1]) <= drive, 2])
+    turn = turn[turn > 0.0]
+    if turn.size == 0:
+        return int(min_pairs)
+    step = float(np.median(turn))
+    return int(min(min_pairs, max(1, np.ceil(min_pairs * reference_step / step - 1e-9))))
 
 
 def echo_extractor(
@@ -484,6 +525,7 @@ class EchoSlamMapper:
         overlap_dist: float = 0.3,
         overlap_angle: float = np.radians(12.0),
         extend: float = 1.0,
+        min_pairs_step: float | None = np.radians(3.0),
     ) -> tuple[SlamMap, FloatArray] | None:
         """Map and path after joint least-squares smoothing of the whole run (graph SLAM,
         :class:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother`; beyond the
@@ -492,7 +534,8 @@ class EchoSlamMapper:
         Parameters
         ----------
         config : SmootherConfig, optional
-            Defaults to the filter's range and slip noise and field of view.
+            Defaults to :meth:`smoother_config` (the filter's range and slip noise and field
+            of view; the joint per-stop association with state space).
         min_hits : int
             Echoes a landmark of the heaviest particle needs to enter the smoothing.
         min_pairs, min_stops : int
@@ -504,6 +547,9 @@ class EchoSlamMapper:
             (m, rad) and longest wall extension (m). Measured on room_pillar (3 filter seeds):
             with the support rule they cut the walls that match no true face from 72-81 to
             39-55 while finding 7-10 of 28 faces (the filter's map: 7-11).
+        min_pairs_step : float or None
+            The turning step (rad) at which ``min_pairs`` holds; a robot turning in coarser
+            steps needs fewer (:func:`scaled_min_pairs`; None: ``min_pairs`` as given).
 
         Returns
         -------
@@ -522,16 +568,7 @@ class EchoSlamMapper:
         if kinds.size == 0:
             return None
         states = np.vstack([ls.walls.reshape(-1, 2), ls.points.reshape(-1, 2)])
-        fc = f.config
-        cfg = config or SmootherConfig(
-            range_sigma=fc.range_sigma,
-            slip_translation=fc.slip_translation,
-            slip_rotation=fc.slip_rotation,
-            slip_heading_per_metre=fc.slip_heading_per_metre,
-            slip_floor=fc.slip_floor,
-            fov=fc.fov,
-            drive_distance=self.config.drive_reset,
-        )
+        cfg = config or self.smoother_config()
         b = int(np.argmax(f.logw))
         smoother = LeastSquaresPathMapSmoother(
             f.antennas, cfg, bias=float(f.bias[b]), mount=float(f.mount[b])
@@ -540,6 +577,8 @@ class EchoSlamMapper:
         poses = np.array([self._final[h[0]] for h in hist])
         odo = np.array([np.zeros(3)] + [np.asarray(h[1], float) for h in hist[1:]])
         res = smoother.smooth(poses, odo, [h[2] for h in hist], [h[3] for h in hist], kinds, states)
+        if min_pairs_step is not None:
+            min_pairs = scaled_min_pairs(min_pairs, odo, min_pairs_step, self.config.drive_reset)
         the_map = build_map(
             smoothed_landmark_set(res, min_pairs=min_pairs, min_stops=min_stops),
             overlap_dist=overlap_dist,
@@ -547,6 +586,24 @@ class EchoSlamMapper:
             extend=extend,
         )
         return the_map, np.column_stack([t, res.poses])
+
+    def smoother_config(self) -> SmootherConfig:
+        """:meth:`smooth`'s default :class:`SmootherConfig`: the filter's range and slip noise
+        and field of view, and the joint per-stop association (``stop_gate``,
+        :data:`STATE_STOP_GATE`) with state-space association only."""
+        fc = self.filter.config
+        return SmootherConfig(
+            range_sigma=fc.range_sigma,
+            slip_translation=fc.slip_translation,
+            slip_rotation=fc.slip_rotation,
+            slip_heading_per_metre=fc.slip_heading_per_metre,
+            slip_floor=fc.slip_floor,
+            fov=fc.fov,
+            drive_distance=self.config.drive_reset,
+            # on room_pillar's measurement-space echo tracks (filter seed 0, 3-degree steps)
+            # the joint association added 18 m of wall matching no face and 6 false corners
+            stop_gate=STATE_STOP_GATE if not self.measurement_space else 0.0,
+        )
 
     def map(self, min_hits: int = 8) -> SlamMap:
         """The current map of the best particle (:func:`~fusion_center.mapping.features.build_map`

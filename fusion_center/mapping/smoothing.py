@@ -18,7 +18,9 @@ initial guess (its trajectory and the heaviest particle's landmarks with their k
 associations are re-made from the current estimate before each round: every echo group of
 the measurement-space association (:mod:`fusion_center.mapping.grouping`) goes to the landmark
 whose predicted echoes explain the group best (gated per pair), so a group stays one
-landmark as in Section 6.3.
+landmark as in Section 6.3; the pairs left over are then tested per stop, together, against
+each landmark with one common range offset (``SmootherConfig.stop_gate``: a stop placed off by
+its odometry puts all its echoes of a wall off alike).
 
 Poses: one key pose ``[x, y, yaw]`` per ``keyframe_step`` acquisitions and at every drive;
 the acquisitions between key poses hang off their key pose through the recorded odometry.
@@ -86,6 +88,19 @@ class SmootherConfig:
         the current poses, both as a wall and as a point-like landmark (its own kind, or the
         better of corner and point for a wall); it changes kind when the other fit's robust
         cost is below ``kind_switch_ratio`` times its own.
+    stop_gate : float
+        Pairs beyond ``gate`` but within this (m) of a landmark's prediction at both
+        receivers are associated with it jointly per stop: when at least ``stop_min_pairs``
+        of one stop's pairs lie within ``gate`` of one common range offset and no pair of
+        that stop is associated with the landmark already
+        (:meth:`LeastSquaresPathMapSmoother._associate_by_stop`; 0 or anything up to
+        ``gate``: off, the default; :meth:`EchoSlamMapper.smooth
+        <fusion_center.mapping.pipeline.EchoSlamMapper.smooth>` sets 0.6 m with state-space
+        association). corridor_L_sparse seed 1: the third stop's 11 echoes of the two side
+        walls were 0.4-0.5 m from their prediction (the walls turned by the first stop's
+        heading drift, the stop placed by odometry) and never used.
+    stop_min_pairs : int
+        Pairs a stop's joint association needs (>= 1).
     """
 
     keyframe_step: int = 5
@@ -107,6 +122,8 @@ class SmootherConfig:
     merge_point_dist: float = 0.0
     refit_kinds: bool = False
     kind_switch_ratio: float = 0.7
+    stop_gate: float = 0.0
+    stop_min_pairs: int = 3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.kind_switch_ratio <= 1.0:
@@ -114,6 +131,11 @@ class SmootherConfig:
             raise ValueError(f"kind_switch_ratio must be in (0, 1], got {self.kind_switch_ratio}")
         if self.merge_dist < 0.0 or self.merge_point_dist < 0.0 or self.merge_angle < 0.0:
             raise ValueError("merge_dist, merge_point_dist and merge_angle must be >= 0")
+        if not self.stop_gate >= 0.0:
+            raise ValueError(f"stop_gate must be >= 0, got {self.stop_gate}")
+        k = self.stop_min_pairs
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
+            raise ValueError(f"stop_min_pairs must be an integer >= 1, got {k!r}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -421,6 +443,86 @@ class LeastSquaresPathMapSmoother:
         states[to_wall] = st_w[to_wall]
         return kinds, states
 
+    def _associate_by_stop(
+        self,
+        lm: IntArray,
+        pair_stop: IntArray,
+        pair: IntArray,
+        landmark: IntArray,
+        err: FloatArray,
+    ) -> IntArray:
+        """Associate a stop's unassociated echo pairs with a landmark jointly, allowing one
+        common range offset (``SmootherConfig.stop_gate``).
+
+        The pairs of one stop share its pose error (and the landmark's own error there): a
+        stop placed 0.2 m off a wall, or a wall turned by the first stop's heading drift, puts
+        every echo of that wall from that stop 0.3-0.5 m from its prediction, beyond ``gate``,
+        and the smoother never sees them. Here the candidates of a (stop, landmark) group,
+        every unassociated pair within ``stop_gate`` of the landmark's prediction at both
+        receivers, are tested together: the median of their mean (over the two receivers)
+        range residuals is the common offset, and the pairs within ``gate`` of it at both
+        receivers are associated when at least ``stop_min_pairs`` are and
+        the stop has no pair associated with that landmark already (then the landmark's echo
+        from there is known and the rest are other echoes). A pair that qualifies for several
+        landmarks takes the one with the smallest offset. This is the joint compatibility
+        of a set of pairings (Neira and Tardos 2001, "Data association in stochastic mapping
+        using the joint compatibility test") simplified to one shared offset per stop and
+        landmark; beyond the chapter.
+
+        Parameters
+        ----------
+        lm : ndarray of int, shape (m,)
+            Landmark of every pair from the per-pair gate (-1: none).
+        pair_stop : ndarray of int, shape (m,)
+            Stop of every pair.
+        pair, landmark : ndarray of int, shape (c,)
+            Candidate (pair, landmark) entries within ``stop_gate``.
+        err : ndarray, shape (c, 2)
+            Their residuals ``z - predicted`` at the two receivers, m.
+
+        Returns
+        -------
+        ndarray of int, shape (m,)
+            ``lm`` with the jointly associated pairs set.
+        """
+        cfg = self.config
+        n_lm = int(max(landmark.max(initial=-1), lm.max(initial=-1))) + 1
+        free = lm[pair] < 0
+        pair, landmark, err = pair[free], landmark[free], err[free]
+        if pair.size == 0:
+            return lm
+        key = pair_stop[pair] * n_lm + landmark
+        seen = lm >= 0
+        known = np.unique(pair_stop[seen] * n_lm + lm[seen])
+        keep = ~np.isin(key, known)
+        pair, landmark, err, key = pair[keep], landmark[keep], err[keep], key[keep]
+        if pair.size == 0:
+            return lm
+        # the median offset of each (stop, landmark) group: one range offset for both
+        # receivers (a shifted pose or landmark moves both ranges alike; a different
+        # direction of arrival, another reflector's, changes their difference)
+        groups, inv = np.unique(key, return_inverse=True)
+        count = np.bincount(inv)
+        mean_err = err.mean(1)
+        order = np.lexsort((mean_err, inv))
+        start = np.r_[0, np.cumsum(count)[:-1]]
+        offset = 0.5 * (
+            mean_err[order[start + (count - 1) // 2]] + mean_err[order[start + count // 2]]
+        )
+        inlier = np.all(np.abs(err - offset[inv, None]) <= cfg.gate, 1)
+        support = np.bincount(inv, inlier, minlength=groups.size)
+        ok = inlier & (support[inv] >= cfg.stop_min_pairs)
+        if not np.any(ok):
+            return lm
+        pair, landmark, inv = pair[ok], landmark[ok], inv[ok]
+        # a pair with several qualifying landmarks: the smallest common offset
+        size = np.abs(offset[inv])
+        order = np.lexsort((size, pair))
+        first = np.r_[True, pair[order][1:] != pair[order][:-1]]
+        out = lm.copy()
+        out[pair[order][first]] = landmark[order][first]
+        return out
+
     # --- the problem --------------------------------------------------------------------------
 
     def smooth(
@@ -528,6 +630,8 @@ class LeastSquaresPathMapSmoother:
             gate2 = (cfg.gate / cfg.range_sigma) ** 2
             d2 = np.empty((z.shape[0], n_lm))
             cos_fov = np.cos(cfg.fov)
+            # pairs within stop_gate of a landmark's prediction: (pair, landmark, residuals)
+            wide: list[tuple[IntArray, IntArray, FloatArray]] = []
             for a in range(0, z.shape[0], 1024):
                 b = min(a + 1024, z.shape[0])
                 r, ok, d = self._predict(
@@ -535,17 +639,25 @@ class LeastSquaresPathMapSmoother:
                 )
                 bore = np.stack([np.cos(yaw[a:b]), np.sin(yaw[a:b])], -1)[:, None, :]
                 ok &= np.sum(d * bore, -1) >= cos_fov
-                res = np.abs(z[a:b, None, :] - r) / cfg.range_sigma
+                err = z[a:b, None, :] - r
+                res = np.abs(err) / cfg.range_sigma
                 d2[a:b] = np.where(ok, np.sum(res**2, -1), np.inf)
                 # a pair beyond the gate at either receiver cannot be that landmark's echo
                 d2[a:b] = np.where(np.all(res <= np.sqrt(gate2), -1), d2[a:b], np.inf)
+                if cfg.stop_gate > cfg.gate:
+                    pi, li = np.nonzero(ok & np.all(np.abs(err) <= cfg.stop_gate, -1))
+                    wide.append((pi + a, li, err[pi, li]))
             clipped = np.minimum(d2, gate2)
             m = z.shape[0]
             onehot = sp.csr_matrix((np.ones(m), (gid, np.arange(m))), shape=(gid.max() + 1, m))
             group_cost = onehot @ clipped  # (G, L)
             best = np.argmin(group_cost, 1)
             lm = best[gid]
-            return np.where(np.isfinite(d2[np.arange(z.shape[0]), lm]), lm, -1)
+            lm = np.where(np.isfinite(d2[np.arange(z.shape[0]), lm]), lm, -1)
+            if wide:
+                pi, li, err = (np.concatenate(v) for v in zip(*wide, strict=True))
+                lm = self._associate_by_stop(lm, stop_of[acq], pi, li, err)
+            return lm
 
         def build(assoc: IntArray):
             use = np.flatnonzero(assoc >= 0)

@@ -84,7 +84,7 @@ def test_map_association_follows_the_turning_step(robot_recording: Path, tmp_pat
 def test_map_closes_the_outline(robot_recording: Path, tmp_path: Path) -> None:
     # corridor_L_sparse's stops see each wall only near their perpendiculars: its walls end
     # about 1.2 m short of the room's corners until the outline is closed (on this recording
-    # measured: outline 51 -> 66 %, corners found 0 -> 2 of 6, same faces, no ghost)
+    # measured: outline 57 -> 71 %, corners found 1 -> 2 of 6, same faces, no ghost)
     out = tmp_path / "m.json"
     args = ("--particles", "20", "--seed", "3", "--eval", "corridor_L_sparse")
     proc = uwbnet("map", str(robot_recording), "--out", str(out), *args)
@@ -106,6 +106,25 @@ def test_map_closes_the_outline(robot_recording: Path, tmp_path: Path) -> None:
     assert closed["corners"]["false_aligned"] == open_["corners"]["false_aligned"]
     unsupported = closed["walls"]["unsupported_aligned_m"] - open_["walls"]["unsupported_aligned_m"]
     assert unsupported <= 0.1
+    # the L's inner (convex) corner, (8.4, 1.2) in the first-pose frame: the first leg's inner
+    # wall is extended to the second leg's, which is trimmed back to it (mapped from the
+    # corner's edge 1.2 m into the first leg) and ends there (measured: outline 0.566 ->
+    # 0.705, the two walls meet at (8.34, 1.70), the path 2.8 degrees turned)
+    walls = np.array(doc["walls"])
+    along_y = np.abs(walls[:, 2] - walls[:, 0]) < np.abs(walls[:, 3] - walls[:, 1])
+    ends = walls.reshape(-1, 2, 2)
+    inner = [
+        (i, j)
+        for i in np.flatnonzero(~along_y)
+        for j in np.flatnonzero(along_y)
+        if np.min(np.linalg.norm(ends[i][:, None] - ends[j][None], axis=-1)) < 1e-6
+        and abs(ends[j][:, 0].mean() - 8.4) < 0.3
+    ]
+    assert len(inner) == 1
+    i, j = inner[0]
+    corner = ends[j][np.argmin(ends[j][:, 1])]
+    assert abs(corner[0] - 8.4) < 0.3 and 1.0 < corner[1] < 2.0
+    assert ends[i][:, 0].max() <= corner[0] + 1e-6  # the first leg's wall stops there
 
 
 def test_map_errors_are_one_line(robot_recording: Path, tmp_path: Path) -> None:

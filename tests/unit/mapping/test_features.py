@@ -81,6 +81,25 @@ def test_convex_corner_of_an_l_closes_without_a_corner() -> None:
     assert len(c.corners) == 0
 
 
+def test_a_wall_running_past_a_convex_corner_is_trimmed_to_it() -> None:
+    # the L of corridor_L_sparse: the first leg's inner wall y = 2 mapped x 0..2.2 (seen from
+    # below), the second leg's inner wall x = 5 mapped down to y = 1.2 (seen from the right):
+    # 0.8 m past the corner (5, 2) into the first leg, the echo of the corner's edge heard
+    # from (6, 1); the corner lies 2.8 m beyond the first wall's end
+    walls = [[0, 2, 2.2, 2], [5, 6, 5, 1.2]]
+    path = [[1.5, 1], [6, 1], [6, 5]]
+    _, c = _closed(walls, path)
+    np.testing.assert_allclose(c.walls, [[0, 2, 5, 2], [5, 6, 5, 2]], atol=1e-12)
+    assert len(c.corners) == 0
+    # with the concave corners' reach and trim it stays open
+    m, c = _closed(walls, path, convex_reach=2.5, convex_trim=0.3)
+    np.testing.assert_array_equal(c.walls, m.walls)
+    # a concave corner's wall running 0.8 m past it is not cut (a room wall going on past a
+    # face; the convex trim does not apply)
+    m, c = _closed([[-0.8, 0, 4, 0], [0, 3, 0, 0.5]], [[2, 1], [1, 2]])
+    np.testing.assert_array_equal(c.walls, m.walls)
+
+
 def test_parallel_far_or_inconsistent_walls_stay_open() -> None:
     # parallel walls of a corridor
     m, c = _closed([[0, 0, 3, 0], [0, 2, 3, 2]], [[1, 1], [2, 1]])
@@ -131,6 +150,10 @@ def test_close_outline_rejects_bad_settings_and_shapes() -> None:
         close_outline(SlamMap(), np.zeros((1, 2)), clearance=float("nan"))
     with pytest.raises(ValueError, match=r"confirm .*got -1"):
         close_outline(SlamMap(), np.zeros((1, 2)), confirm=-1.0)
+    with pytest.raises(ValueError, match=r"convex_reach .*got 0\.0"):
+        close_outline(SlamMap(), np.zeros((1, 2)), convex_reach=0.0)
+    with pytest.raises(ValueError, match=r"convex_trim .*got nan"):
+        close_outline(SlamMap(), np.zeros((1, 2)), convex_trim=float("nan"))
     # map.json's trajectory rows are [t, x, y, yaw]: not positions
     walls = SlamMap(walls=np.array([[1.0, 0, 4, 0], [5, 1, 5, 3]]))
     with pytest.raises(ValueError, match=r"path must be \(k, 2\).*\(3, 4\)"):

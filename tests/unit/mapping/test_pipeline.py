@@ -115,3 +115,43 @@ def test_issue_8_the_service_publishes_held_poses_live_and_keeps_time_order() ->
     ys = [p.poses["robot"].pose[1] for p in poses]
     assert np.allclose(xs, 1.0 + np.arange(10))
     assert np.allclose(ys, [2.0] * 6 + [3.0] + [2.0] * 3)
+
+
+def _turns(step_deg: float, stops: int = 3, headings: int = 24) -> np.ndarray:
+    """Odometry of a robot turning ``headings`` steps at each stop, 3 m drives between."""
+    turn = np.tile([0.0, 0.0, np.radians(step_deg)], (headings, 1))
+    drive = np.array([[3.0, 0.05, 0.01]])
+    return np.vstack([np.vstack([drive, turn]) for _ in range(stops)])
+
+
+def test_the_support_a_smoothed_landmark_needs_follows_the_turning_step() -> None:
+    import pytest
+
+    from fusion_center.mapping.pipeline import scaled_min_pairs
+
+    ref = np.radians(3.0)
+    # at the reference step the count stands; coarser steps see a wall in fewer headings
+    assert scaled_min_pairs(8, _turns(3.0), ref) == 8
+    assert scaled_min_pairs(8, _turns(15.0), ref) == int(np.ceil(8 * 3.0 / 15.0))
+    assert scaled_min_pairs(8, _turns(6.0), ref) == 4
+    # finer steps do not ask for more, and a robot that never turns keeps it
+    assert scaled_min_pairs(8, _turns(1.0), ref) == 8
+    assert scaled_min_pairs(8, _turns(0.0), ref) == 8
+    assert scaled_min_pairs(8, _turns(90.0), ref) == 1
+    with pytest.raises(ValueError, match="reference_step"):
+        scaled_min_pairs(8, _turns(3.0), 0.0)
+
+
+def test_the_joint_per_stop_association_is_for_state_space_only() -> None:
+    from fusion_center.mapping import SlamConfig
+    from fusion_center.mapping.pipeline import STATE_STOP_GATE
+
+    def mapper(association: str) -> EchoSlamMapper:
+        slam = SlamConfig(association=association)
+        return EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
+
+    # measured: with room_pillar's measurement-space tracks it added walls matching no face
+    assert mapper("state").smoother_config().stop_gate == STATE_STOP_GATE > 0.25
+    assert mapper("measurement").smoother_config().stop_gate == 0.0
+    cfg = mapper("state").smoother_config()
+    assert cfg.range_sigma == mapper("state").filter.config.range_sigma

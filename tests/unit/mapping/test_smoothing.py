@@ -235,7 +235,16 @@ def test_a_merged_group_is_not_absorbed_again_by_a_weaker_landmark() -> None:
 
 
 @pytest.mark.parametrize(
-    "kw", [{"kind_switch_ratio": 1.5}, {"kind_switch_ratio": 0.0}, {"merge_dist": -0.1}]
+    "kw",
+    [
+        {"kind_switch_ratio": 1.5},
+        {"kind_switch_ratio": 0.0},
+        {"merge_dist": -0.1},
+        {"stop_gate": -0.1},
+        {"stop_gate": float("nan")},
+        {"stop_min_pairs": 0},
+        {"stop_min_pairs": 2.5},
+    ],
 )
 def test_smoother_config_rejects_settings_that_cannot_work(kw) -> None:
     with pytest.raises(ValueError):
@@ -248,3 +257,59 @@ def test_slam_config_rejects_a_bad_hypothesis_count(k) -> None:
 
     with pytest.raises(ValueError):
         SlamConfig(relocalise_hypotheses=k)
+
+
+def _stop_placed_off(shift: float, seed: int = 3):
+    """The rectangle room's problem with the last stop placed ``shift`` m off in y by its
+    odometry (the drive to it slipped sideways): its echoes come from the true poses, the
+    odometry and the initial guess say it stands ``shift`` m higher."""
+    room = rectangle_room()
+    poses = stop_and_turn_poses(STOPS, TURN, np.radians(12.0))
+    rng = np.random.default_rng(seed)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+    believed = poses.copy()
+    believed[-TURN:, 1] += shift
+    odo = odometry_increments(believed, rng, OdometrySlip(translation=0.0, rotation=0.0))
+    kinds, truth = _true_landmarks(room)
+    # the walls only: a corner or point in another direction would place the stop alone
+    return poses, believed, odo, pairs, kinds[:4], truth[:4]
+
+
+@pytest.mark.parametrize("stop_gate", [0.0, 0.6])
+def test_a_stop_placed_off_by_its_odometry_keeps_its_wall_echoes_jointly(stop_gate) -> None:
+    poses, believed, odo, pairs, kinds, truth = _stop_placed_off(0.22)
+    cfg = SmootherConfig(range_sigma=0.02, stop_gate=stop_gate)
+    res = LeastSquaresPathMapSmoother(ANTENNAS, cfg).smooth(
+        believed, odo, pairs, None, kinds, truth
+    )
+    last = slice(-TURN, None)
+    err = np.abs(res.poses[last, 1] - poses[last, 1]).mean()
+    if stop_gate == 0.0:
+        # each echo of the walls above and below is 0.4 m from its prediction, beyond the
+        # 0.25 m gate: the stop stays where its odometry put it
+        assert err > 0.15
+    else:
+        # together they share one offset: associated, they pull the stop onto the truth
+        assert err < 0.03
+        # (the drive to it is 0.22 m off: the stop before gives a little, within 0.06 m)
+        assert np.abs(res.poses[:-TURN, :2] - poses[:-TURN, :2]).max() < 0.06
+
+
+def test_the_joint_association_needs_a_common_offset() -> None:
+    smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
+    lm = np.array([-1, -1, -1, -1, -1, 0])
+    stop = np.array([0, 0, 0, 1, 1, 1])
+    pair = np.array([0, 1, 2, 3, 4, 5])
+    landmark = np.zeros(6, np.int64)
+    # stop 0: three pairs 0.4 m off alike; stop 1: pairs spread 0.3 to 0.55, and its pair 5
+    # is associated already
+    err = np.array([[0.4, 0.41], [0.39, 0.4], [0.42, 0.4], [0.3, 0.3], [0.55, 0.55], [0, 0]])
+    out = smoother._associate_by_stop(lm, stop, pair, landmark, err)
+    assert out.tolist() == [0, 0, 0, -1, -1, 0]
+    # a different direction of arrival (r1 - r2 off by 0.5 m) is no common range offset
+    err2 = err.copy()
+    err2[:3] = [[0.15, 0.65], [0.16, 0.64], [0.14, 0.66]]
+    assert smoother._associate_by_stop(lm, stop, pair, landmark, err2).tolist() == lm.tolist()
+    # two pairs are too few (stop_min_pairs = 3)
+    two = smoother._associate_by_stop(lm, stop, pair[1:], landmark[1:], err[1:])
+    assert two.tolist() == lm.tolist()

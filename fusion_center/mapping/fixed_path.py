@@ -27,9 +27,11 @@ registration), the landmarks are estimated directly, without a filter:
 5. the landmarks with enough pairs from at least two stops become a
    :class:`~fusion_center.mapping.features.SlamMap`
    (:func:`~fusion_center.mapping.features.build_map`); a corner heard from stops spread
-   over more than a corner's quadrant is mapped as a point, and a corner heard at a low
-   rate from the stops within its hearing distance, or next to a better-supported corner,
-   is left out (``corner_span``, ``corner_rate``, ``corner_separation``).
+   over more than a corner's quadrant is mapped as a point at its point fit when that model
+   fits it and left out otherwise, and a corner heard by a small fraction of the looks from
+   the stops that could hear it, or next to a better-supported corner, is left out
+   (``corner_span``, ``corner_point_cost``, ``corner_rate``, ``corner_separation``;
+   :meth:`_FixedPathMapper.corner_evidence`).
 
 Steps 3 and 4 minimise, over the landmark states :math:`\ell_k` (and, with the
 refinement, the stop corrections :math:`c_s = (\delta x, \delta y, \delta\psi)`, stop 0

@@ -27,9 +27,11 @@ registration), the landmarks are estimated directly, without a filter:
 5. the landmarks with enough pairs from at least two stops become a
    :class:`~fusion_center.mapping.features.SlamMap`
    (:func:`~fusion_center.mapping.features.build_map`); a corner heard from stops spread
-   over more than a corner's quadrant is mapped as a point, and a corner heard at a low
-   rate from the stops within its hearing distance, or next to a better-supported corner,
-   is left out (``corner_span``, ``corner_rate``, ``corner_separation``).
+   over more than a corner's quadrant is mapped as a point at its point fit when that model
+   fits it and left out otherwise, and a corner heard by a small fraction of the looks from
+   the stops that could hear it, or next to a better-supported corner, is left out
+   (``corner_span``, ``corner_point_cost``, ``corner_rate``, ``corner_separation``;
+   :meth:`_FixedPathMapper.corner_evidence`).
 
 Steps 3 and 4 minimise, over the landmark states :math:`\ell_k` (and, with the
 refinement, the stop corrections :math:`c_s = (\delta x, \delta y, \delta\psi)`, stop 0
@@ -166,31 +168,57 @@ class FixedPathConfig:
         probe, with points at 2.5 m undecided in 4 of 6 seeds; 15 of 67 and 10 of 61 mapped
         point-like landmarks undecided on room_pillar seeds 0 and 1 at the true path.
     corner_span : float
-        Largest angle, about a corner landmark, that the stops which heard it may span
-        (rad). A concave corner returns its double reflection (Fig. 19) only into the
-        quadrant between its two walls; a point-like landmark heard from stops spread over
-        more than that quadrant (plus the path's error) is a convex edge or a scatterer
-        heard from around it, and is mapped as a point (``inf``: off). Along the stop
-        graph's path on room_pillar the corners within 10 cm of a true one were heard over
-        47-99 degrees, convex edges and the pillar's multipath over up to 228.
+        Largest angle, about a corner landmark, that its hearing stops may span, rad
+        (:meth:`_FixedPathMapper.corner_evidence`: only stops with a few of its pairs count,
+        and a stop near the landmark by at most ``corner_position_error`` of swing). A
+        concave, right-angled corner returns its double reflection (Fig. 19) only into the
+        quadrant between its two walls; a landmark heard from stops spread over more is a
+        convex edge or a scatterer heard from around it. It is mapped as a point (at the
+        point model's fit) when that model explains it (``corner_point_cost``), and left out
+        otherwise (``inf``: off). Along the stop graph's path on room_pillar seeds 0 and 1
+        the corners within 10 cm of a true one spanned 26-60 degrees, the convex edges and
+        the pillar's multipath up to 222. The test assumes right-angled corners: a corner of
+        a room with 135-degree corners is heard over up to 135 degrees.
     corner_rate : float
-        Smallest hearing rate of a mapped corner: its pairs per acquisition made at the stops
-        no farther from it than the farthest stop that heard it. A concave corner is a
-        retro-reflector, heard from every stop in its quadrant within range; a multipath
-        image or an alias heard from a few stops in special positions is not. Corners below
-        it are left out of the map (0: off). On room_pillar (seeds 0 and 1, stop graph's
-        path) the corners within 10 cm of a true one had 0.024-0.092, the ghosts (more than
-        0.5 m from every true corner) 0.001-0.021 and the true corners 0.28-0.38 m off
-        0.007-0.012: 0.015 left 19 / 12 ghosts out but for 1 on seed 1, and 3 of those true
-        corners; 0.025 one more true corner on seed 1 (docs/mapping.md, "Ghost corners").
+        Smallest hearing rate of a mapped corner (0: off): the fraction of the acquisitions,
+        at the stops that could hear it, that heard it (:meth:`_FixedPathMapper.
+        corner_evidence`: stops within its pair-weighted ``corner_reach_quantile`` hearing
+        distance and within the arc of its hearing stops, at least a quadrant wide, widened by
+        ``corner_sector_margin``). A concave corner is a retro-reflector, heard from every
+        stop in its quadrant within range; a multipath image heard from a few stops in
+        special positions is not. On room_pillar seeds 0 and 1 (stop graph's path) the
+        corners within 10 cm of a true one had 0.033-0.103, the ghosts more than 0.5 m from
+        every true corner and edge 0.004-0.017, the convex edges 0.003-0.042
+        (docs/mapping.md, "Ghost corners").
+    corner_stop_pairs, corner_stop_share : int, float
+        A stop counts as hearing a point-like landmark when it has at least this many of its
+        pairs and at least this share of the pairs of the landmark's best stop (one stray
+        association sets neither the span nor the hearing distance).
+    corner_position_error : float
+        Error of a landmark's position allowed for in its span, m: the span is reduced by
+        ``2 atan(error / d)`` with ``d`` the nearest hearing stop's distance.
+    corner_reach_quantile : float
+        Quantile, weighted by pairs, of the hearing stops' distances that bounds the stops
+        counted in the hearing rate (in (0, 1]).
+    corner_sector_margin : float
+        Margin on each side of the hearing stops' arc (at least a quadrant) within which
+        stops count in the hearing rate, rad.
+    corner_point_cost : float
+        A corner heard over more than ``corner_span`` goes into the map as a point only when
+        the point model's mean Cauchy cost per pair is at most this (the cost of
+        :class:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother`, eq. above,
+        per pair of two ranges: about 1 for residuals of ``range_sigma``); otherwise it is
+        left out (``inf``: always a point). On the held-out warehouse and L hall the convex
+        edges so mapped had 0.65-2.5, room_pillar's pillar multipath 3-7.
     corner_junction : float
         A corner under ``corner_rate`` is kept when it lies within this of a junction of two
         mapped walls (their lines meeting at 60 degrees or more, within ``extend`` of both
         segments): where two walls meet the room has a corner, whatever the rate says, m
-        (0: off).
+        (0: off). The separation rule is applied after.
     corner_separation : float
-        Of two corners closer than this, the one with fewer pairs is left out (the same
-        corner fitted twice, e.g. from two sides at a path that is a little off), m (0: off).
+        Of two corners closer than this, the one with fewer pairs (equal pairs: the lower
+        hearing rate; then the higher index) is left out (the same corner fitted twice,
+        e.g. from two sides at a path that is a little off), m (0: off).
     fitted_kinds : bool
         Corner or point as fitted (the better Cauchy cost of the two models over all the
         landmark's echoes), not by :func:`~fusion_center.mapping.features.build_map`'s
@@ -224,9 +252,15 @@ class FixedPathConfig:
     extend: float = 1.0
     kind_margin: float = 1.0
     corner_span: float = np.radians(110.0)
-    corner_rate: float = 0.015
+    corner_rate: float = 0.02
     corner_separation: float = 0.3
     corner_junction: float = 0.0
+    corner_stop_pairs: int = 2
+    corner_stop_share: float = 0.1
+    corner_position_error: float = 0.1
+    corner_reach_quantile: float = 0.8
+    corner_sector_margin: float = np.radians(20.0)
+    corner_point_cost: float = 3.0
     fitted_kinds: bool = True
     drop_crossed: bool = False
     keep_ties: bool = False
@@ -258,6 +292,9 @@ class FixedPathConfig:
             "corner_rate": self.corner_rate,
             "corner_separation": self.corner_separation,
             "corner_junction": self.corner_junction,
+            "corner_stop_share": self.corner_stop_share,
+            "corner_position_error": self.corner_position_error,
+            "corner_sector_margin": self.corner_sector_margin,
         }
         for name, v in non_negative.items():
             if not (np.isfinite(v) and v >= 0.0):
@@ -271,11 +308,20 @@ class FixedPathConfig:
                 "FixedPathConfig.assoc_gate_start must be >= assoc_gate (the gate shrinks), "
                 f"got {self.assoc_gate_start!r} < {self.assoc_gate!r}"
             )
+        if not 0.0 < self.corner_reach_quantile <= 1.0:
+            raise ValueError(
+                "FixedPathConfig.corner_reach_quantile must be in (0, 1], "
+                f"got {self.corner_reach_quantile!r}"
+            )
+        if not self.corner_point_cost >= 0.0:
+            raise ValueError(
+                f"FixedPathConfig.corner_point_cost must be >= 0, got {self.corner_point_cost!r}"
+            )
         if not self.corner_span > 0.0:
             raise ValueError(f"FixedPathConfig.corner_span must be > 0, got {self.corner_span!r}")
         if not self.wall_gap > 0.0:
             raise ValueError(f"FixedPathConfig.wall_gap must be > 0, got {self.wall_gap!r}")
-        for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds"):
+        for name in ("min_group_pairs", "min_pairs", "min_stops", "rounds", "corner_stop_pairs"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"FixedPathConfig.{name} must be an integer >= 1, got {v!r}")
@@ -312,13 +358,15 @@ class FixedPathMap:
         Landmark (index into ``kinds``) of every echo pair, in the order of the pairs
         concatenated over the acquisitions; -1: none (empty when no landmark was formed).
     view_span, hearing_rate : ndarray, shape like ``kinds``
-        Of every point-like landmark (NaN for walls): the angle about it spanned by the stops
-        that heard it (rad) and its pairs per acquisition at the stops within the farthest
-        hearing distance (:meth:`_FixedPathMapper.corner_evidence`).
+        Of every point-like landmark (NaN for walls): the angle about it spanned by its
+        hearing stops, less their position-error swing (rad), and the fraction of the
+        acquisitions at the stops that could hear it that heard it
+        (:meth:`_FixedPathMapper.corner_evidence`).
     screened : ndarray of bool, shape like ``kinds``
-        The corners left out of the map by ``corner_rate`` or ``corner_separation``
-        (``kinds`` are as fitted: a corner the map holds as a point by ``corner_span`` is
-        still a corner there).
+        The corners left out of the map by ``corner_rate``, ``corner_separation``, or by
+        ``corner_span`` when the point model does not fit them either (``kinds`` and
+        ``states`` are as fitted: a corner the map holds as a point is still a corner there,
+        at its corner-model state).
     """
 
     map: SlamMap
@@ -431,6 +479,15 @@ def _junctions(walls: FloatArray, reach: float) -> FloatArray:
         return np.linalg.norm(p[k] + along[:, None] * u[k] - x, axis=1)
 
     return x[(off(i) <= reach) & (off(j) <= reach)]
+
+
+def _arc(phi: FloatArray) -> tuple[float, float]:
+    """The smallest arc holding the directions ``phi`` (rad): its start (counter-clockwise
+    from there) and its width, ``2 pi`` minus the largest gap between sorted directions."""
+    a = np.sort(np.mod(phi, 2.0 * np.pi))
+    gaps = np.diff(np.r_[a, a[0] + 2.0 * np.pi])
+    i = int(np.argmax(gaps))
+    return float(a[(i + 1) % a.size]), float(2.0 * np.pi - gaps[i])
 
 
 def map_fixed_path(
@@ -744,6 +801,9 @@ class _FixedPathMapper:
         self.undecided = np.zeros(kinds.size, bool)
         states = states.copy()
         kinds = kinds.copy()
+        self.point_states = states.copy()
+        self.point_cost = np.full(kinds.size, np.nan)
+        self.corner_cost = np.full(kinds.size, np.nan)
         for kind in (WALL, CORNER):
             sel = (kinds == WALL) if kind == WALL else (kinds != WALL)
             idx = np.flatnonzero(sel)
@@ -769,6 +829,10 @@ class _FixedPathMapper:
             undecided = np.abs(gain) <= cfg.kind_margin
             corner = np.where(undecided, kinds[idx] == CORNER, gain > 0.0)
             states[idx] = np.where(corner[:, None], st_c, st_p)
+            # kept for the map: a corner heard from all around goes in as the point fit
+            self.point_states[idx] = st_p
+            self.point_cost[idx] = c_p
+            self.corner_cost[idx] = c_c
             kinds[idx] = np.where(corner, CORNER, POINT)
             self.undecided = np.zeros(kinds.size, bool)
             self.undecided[idx] = undecided
@@ -926,11 +990,15 @@ class _FixedPathMapper:
         span, rate = self.corner_evidence(kinds, states, lm)
         # the map's kinds only: ``kinds`` stay as fitted (the stop bundle adjustment refits
         # the landmarks with their fitted models)
-        map_kinds, screened = self.screen_corners(kinds, states, pairs, stops, span, rate)
+        map_kinds, map_states, drop, low = self.screen_corners(
+            kinds, states, pairs, stops, span, rate
+        )
+        mapped = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops) & (map_kinds == CORNER)
+        screened = drop | low | self.separate(mapped & ~low, map_states, pairs, rate)
 
         def build(keep_point: npt.NDArray[np.bool_]) -> SlamMap:
             return build_map(
-                self.landmark_set(map_kinds, states, lm, pairs, stops, keep_point),
+                self.landmark_set(map_kinds, map_states, lm, pairs, stops, keep_point),
                 merge_gap=cfg.wall_gap,
                 overlap_dist=cfg.overlap_dist,
                 overlap_angle=cfg.overlap_angle,
@@ -940,14 +1008,15 @@ class _FixedPathMapper:
 
         the_map = build(~screened)
         if cfg.corner_junction > 0.0 and np.any(screened) and len(the_map.walls) >= 2:
-            # a corner left out for its rate comes back where two mapped walls meet
-            low = screened & (rate < cfg.corner_rate)
+            # a corner left out for its rate comes back where two mapped walls meet, and the
+            # separation rule is applied again (a corner that comes back may be a duplicate)
             x = _junctions(the_map.walls, cfg.extend)
             if len(x) and np.any(low):
-                near = np.linalg.norm(states[:, None] - x[None], axis=-1).min(1)
+                near = np.linalg.norm(map_states[:, None] - x[None], axis=-1).min(1)
                 back = low & (near <= cfg.corner_junction)
                 if np.any(back):
-                    screened = screened & ~back
+                    low &= ~back
+                    screened = drop | low | self.separate(mapped & ~low, map_states, pairs, rate)
                     the_map = build(~screened)
         if cfg.drop_crossed and len(the_map.walls) and self.n_stops > 1:
             keep = ~self.crossed(the_map.walls)
@@ -977,14 +1046,30 @@ class _FixedPathMapper:
     def corner_evidence(
         self, kinds: IntArray, states: FloatArray, lm: IntArray
     ) -> tuple[FloatArray, FloatArray]:
-        """View span and hearing rate of every point-like landmark (NaN for walls).
+        r"""View span and hearing rate of every point-like landmark (NaN for walls).
 
-        The span is the smallest angle about the landmark that holds the directions to the
-        mean transmitter positions of the stops that heard it (``2 pi`` minus the largest
-        gap between those directions), rad. The hearing rate is its associated pairs over
-        the acquisitions made at the stops whose mean transmitter position is no farther from
-        it than the farthest of those stops: the fraction of the looks from within its
-        hearing distance that heard it.
+        Only the stops that heard the landmark in earnest count: the *hearing stops*
+        :math:`H_k`, those with at least ``corner_stop_pairs`` of its pairs and at least
+        ``corner_stop_share`` of its best stop's (one stray association from a far stop
+        says nothing about where the landmark is heard from). With :math:`c_s` a stop's mean
+        transmitter position, :math:`d_s = \lVert c_s - \ell_k \rVert` and
+        :math:`\phi_s` the direction of :math:`c_s - \ell_k`:
+
+        .. math::
+
+            \mathrm{span}_k = 2\pi - \max \mathrm{gap}\{\phi_s : s \in H_k,
+            d_s \ge d_\mathrm{near}\}, \qquad
+            \mathrm{rate}_k = \frac{\sum_{s \in D_k} a_{ks}}{\sum_{s \in D_k} A_s},
+
+        rad, where :math:`d_\mathrm{near}` is ``corner_near`` (from a stop next to the
+        landmark a small error in its position swings the direction: those stops are left out
+        of the span; NaN when no hearing stop is farther), :math:`a_{ks}` the acquisitions of
+        stop :math:`s` with a pair of the landmark, :math:`A_s` the stop's acquisitions, and
+        :math:`D_k` the stops that could hear it: no farther than the pair-weighted
+        ``corner_reach_quantile`` quantile of :math:`d_s` over :math:`H_k`, and within the
+        smallest arc of directions holding :math:`\{\phi_s : s \in H_k\}`, widened by
+        ``corner_sector_margin`` on each side (the other leg of an L-shaped room, or the
+        far side of a hall, cannot hear the corner and would dilute the rate).
 
         Beyond the chapter: the chapter's double-reflection model (Fig. 19) says where a
         corner's echo comes from, not who hears it; the view-span test is its visibility
@@ -992,7 +1077,8 @@ class _FixedPathMapper:
         frequency test in the spirit of a track's existence score (Mullane et al., Random
         finite sets for robot mapping and SLAM, 2011, detection probability per view).
         """
-        n = kinds.size
+        cfg = self.cfg
+        n, n_s = kinds.size, self.n_stops
         span = np.full(n, np.nan)
         rate = np.full(n, np.nan)
         used = lm >= 0
@@ -1000,21 +1086,34 @@ class _FixedPathMapper:
         if cand.size == 0 or not np.any(used):
             return span, rate
         ctr = self.stop_centres(self.poses)
-        acq_per_stop = np.bincount(self.stop_of, minlength=self.n_stops)
-        heard = np.zeros((n, self.n_stops), bool)
-        heard[lm[used], self.pair_stop[used]] = True
-        pairs = np.bincount(lm[used], minlength=n)
+        acq_per_stop = np.bincount(self.stop_of, minlength=n_s)
+        cnt = np.bincount(lm[used] * n_s + self.pair_stop[used], minlength=n * n_s).reshape(n, n_s)
+        # acquisitions, not pairs: two pairs of one look are one hearing
+        la = np.unique(np.column_stack([lm[used], self.acq[used]]), axis=0)
+        heard_acq = np.bincount(la[:, 0] * n_s + self.stop_of[la[:, 1]], minlength=n * n_s).reshape(
+            n, n_s
+        )
+        need = np.maximum(cfg.corner_stop_pairs, cfg.corner_stop_share * cnt.max(1))
         for k in cand:  # a loop over the point-like landmarks (a few dozen)
-            s = np.flatnonzero(heard[k])
+            s = np.flatnonzero(cnt[k] >= need[k])
             if s.size == 0:
                 continue
-            v = ctr[s] - states[k]
-            ang = np.sort(np.arctan2(v[:, 1], v[:, 0]))
-            gaps = np.diff(np.r_[ang, ang[0] + 2.0 * np.pi])
-            span[k] = 2.0 * np.pi - gaps.max()
-            dist = np.linalg.norm(ctr - states[k], axis=1)
-            near = dist <= dist[s].max() + 1e-9
-            rate[k] = pairs[k] / acq_per_stop[near].sum()
+            v = ctr - states[k]
+            dist = np.linalg.norm(v, axis=1)
+            phi = np.arctan2(v[:, 1], v[:, 0])
+            start, width = _arc(phi[s])
+            # a small error in the landmark's position swings the direction to a near stop:
+            # the span is measured as if that stop's direction were off by the most it can be
+            span[k] = max(width - 2.0 * np.arctan(cfg.corner_position_error / dist[s].min()), 0.0)
+            # the corner's quadrant at least: a ghost heard along one line of sight gets no
+            # narrower sector than a corner
+            half = max(width, 0.5 * np.pi) / 2.0 + cfg.corner_sector_margin
+            in_sector = np.abs(_wrap(phi - start - width / 2.0)) <= half
+            order = np.argsort(dist[s])
+            w = np.cumsum(cnt[k, s[order]]) / cnt[k, s].sum()
+            reach = dist[s[order]][np.searchsorted(w, cfg.corner_reach_quantile - 1e-12)]
+            d = in_sector & (dist <= reach + 1e-9)
+            rate[k] = heard_acq[k, d].sum() / acq_per_stop[d].sum()
         return span, rate
 
     def screen_corners(
@@ -1025,26 +1124,53 @@ class _FixedPathMapper:
         stops: IntArray,
         span: FloatArray,
         rate: FloatArray,
-    ) -> tuple[IntArray, npt.NDArray[np.bool_]]:
-        """Kinds with the corners heard over more than ``corner_span`` made points, and
-        which corners to leave out: a hearing rate under ``corner_rate``, or within
-        ``corner_separation`` of a corner with more pairs (among the mapped ones)."""
+    ) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+        """The map's kinds and states, and which corners to leave out.
+
+        A corner heard over more than ``corner_span`` (:meth:`corner_evidence`) is a convex
+        edge or a scatterer heard from around it: it goes into the map as a point, at its
+        point-model fit (Fig. 19's single reflection), when that model explains its pairs
+        (mean Cauchy cost per pair at most ``corner_point_cost``), and is left out
+        otherwise (the third output). A corner with a hearing rate under ``corner_rate`` is
+        left out (the fourth); :meth:`separate` then leaves out the weaker of two close
+        corners."""
         cfg = self.cfg
         kinds = kinds.copy()
+        states = states.copy()
         wide = (kinds == CORNER) & (span > cfg.corner_span)
+        per_pair = self.point_cost / np.maximum(pairs, 1)
+        as_point = wide & (per_pair <= cfg.corner_point_cost)
         kinds[wide] = POINT
-        mapped = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops) & (kinds == CORNER)
-        screened = mapped & (rate < cfg.corner_rate)
-        if cfg.corner_separation > 0.0:
-            kept: list[int] = []
-            for k in np.flatnonzero(mapped & ~screened)[np.argsort(-pairs[mapped & ~screened])]:
-                if kept and np.linalg.norm(states[kept] - states[k], axis=1).min() < (
-                    cfg.corner_separation
-                ):
-                    screened[k] = True
-                else:
-                    kept.append(int(k))
-        return kinds, screened
+        states[as_point] = self.point_states[as_point]
+        mapped = (pairs >= cfg.min_pairs) & (stops >= cfg.min_stops)
+        dropped = mapped & wide & ~as_point
+        low = mapped & (kinds == CORNER) & (rate < cfg.corner_rate)
+        return kinds, states, dropped, low
+
+    def separate(
+        self,
+        corner: npt.NDArray[np.bool_],
+        states: FloatArray,
+        pairs: IntArray,
+        rate: FloatArray,
+    ) -> npt.NDArray[np.bool_]:
+        """Which of the ``corner`` landmarks lie within ``corner_separation`` of a better
+        one: the corners are taken by pairs, most first, ties by hearing rate, highest
+        first, then by index; each is left out if a corner taken before it is that close
+        (the same corner fitted twice)."""
+        out = np.zeros(corner.size, bool)
+        if not self.cfg.corner_separation > 0.0:
+            return out
+        idx = np.flatnonzero(corner)
+        kept: list[int] = []
+        for k in idx[np.lexsort((-np.nan_to_num(rate[idx]), -pairs[idx]))]:
+            if kept and np.linalg.norm(states[kept] - states[k], axis=1).min() < (
+                self.cfg.corner_separation
+            ):
+                out[k] = True
+            else:
+                kept.append(int(k))
+        return out
 
     def crossed(self, walls: FloatArray) -> npt.NDArray[np.bool_]:
         """Which wall segments ``[x1, y1, x2, y2]`` (w, 4) a drive between consecutive stops

@@ -7,7 +7,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from fusion_center.mapping.fixed_path import FixedPathConfig, map_fixed_path
+from fusion_center.mapping.fixed_path import FixedPathConfig, _arc, _junctions, map_fixed_path
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import WALL
 from fusion_center.mapping.synthetic import (
@@ -460,8 +460,6 @@ def test_of_two_corners_close_together_the_weaker_is_left_out() -> None:
 
 
 def test_junctions_are_where_two_mapped_walls_meet() -> None:
-    from fusion_center.mapping.fixed_path import _junctions
-
     walls = np.array(
         [
             [0.0, 0.0, 3.0, 0.0],  # meets the next one 0.5 m beyond both ends: a junction
@@ -473,3 +471,152 @@ def test_junctions_are_where_two_mapped_walls_meet() -> None:
     x = _junctions(walls, 1.0)
     assert x.shape == (1, 2) and np.allclose(x[0], [3.5, 0.0]), x
     assert len(_junctions(walls, 0.4)) == 0
+
+
+def _heard_by(
+    stops, hears, stray=None, seed: int = 0, config: FixedPathConfig | None = None, few=None
+):
+    """The corner at (3, 0.2) heard from the stops ``hears`` (indices into ``stops``) at every
+    heading; the others hear nothing but, with ``stray`` a stop index, one acquisition of
+    that stop hears it once (a stray association), and with ``few = (stop, n)`` that stop
+    hears it in n acquisitions."""
+    true = np.array([3.0, 0.2])
+    poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
+    rng = np.random.default_rng(seed)
+    room = _single(corner=true)
+    pairs = [
+        echo_pairs(room, p, ANTENNAS, rng) if i // TURN in hears else np.zeros((0, 2))
+        for i, p in enumerate(poses)
+    ]
+    if stray is not None:
+        for i in range(stray * TURN, (stray + 1) * TURN):
+            z = echo_pairs(room, poses[i], ANTENNAS, rng)
+            if len(z):
+                pairs[i] = z[:1]
+                break
+    if few is not None:
+        looks = [
+            (i, z)
+            for i in range(few[0] * TURN, (few[0] + 1) * TURN)
+            if len(z := echo_pairs(room, poses[i], ANTENNAS, rng))
+        ]
+        for i, z in looks[: few[1]]:
+            pairs[i] = z
+    grouper = KalmanEchoGrouper()
+    ids = []
+    for i, z in enumerate(pairs):
+        if i % TURN == 0:
+            grouper.reset()
+        ids.append(grouper.step(z))
+    cfg = config or FixedPathConfig(min_group_pairs=1)
+    res = map_fixed_path(pairs, ids, poses, ANTENNAS, cfg)
+    k = int(np.argmin(np.linalg.norm(res.states - true, axis=1)))
+    return res, k, true
+
+
+NEAR4 = [[0.0, 0.0], [0.0, 1.0], [0.5, -0.8], [1.0, 0.5]]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_one_stray_pair_from_a_far_stop_changes_neither_span_nor_rate(seed) -> None:
+    # three stops behind the corner, about 5 m away, hear nothing; one look of one of them
+    # associates one pair: it must not widen the span (a point) or push the hearing distance
+    # out over every stop in between (a low rate)
+    behind = [[7.5, 2.0], [7.8, -1.5], [6.5, 3.5]]
+    clean, k0, true = _heard_by(NEAR4 + behind, {0, 1, 2, 3}, seed=seed)
+    res, k, _ = _heard_by(NEAR4 + behind, {0, 1, 2, 3}, stray=5, seed=seed)
+    assert res.pairs[k] == clean.pairs[k0] + 1  # the stray pair is associated
+    assert len(res.map.corners) == 1 and np.linalg.norm(res.map.corners[0] - true) < 0.05
+    assert res.view_span[k] == pytest.approx(clean.view_span[k0], abs=1e-3)
+    assert res.view_span[k] < np.radians(60.0)
+    assert res.hearing_rate[k] == pytest.approx(clean.hearing_rate[k0], rel=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_stops_that_cannot_hear_a_corner_do_not_dilute_its_rate(seed) -> None:
+    # stops behind the corner (the other leg of an L, within its hearing distance) and stops
+    # in its sector beyond its hearing distance, none hearing it: the rate is that of the
+    # four stops that hear it
+    alone, k0, _ = _heard_by(NEAR4, {0, 1, 2, 3}, seed=seed)
+    leg = [[5.0, 2.0], [5.5, 1.0], [5.0, -1.5], [4.5, 2.5], [5.5, -0.5], [4.0, -2.0]]
+    beyond = [[-3.0, 0.0], [-3.0, 1.5]]
+    res, k, true = _heard_by(NEAR4 + leg + beyond, {0, 1, 2, 3}, seed=seed)
+    assert res.hearing_rate[k] == pytest.approx(alone.hearing_rate[k0], abs=1e-9)
+    assert alone.hearing_rate[k0] > 0.1
+    assert len(res.map.corners) == 1 and np.linalg.norm(res.map.corners[0] - true) < 0.05
+    # the beyond stops are in its sector: within the hearing distance they count
+    near = [[1.5, 0.3], [1.8, -0.3]]
+    res2, k2, _ = _heard_by(NEAR4 + near, {0, 1, 2, 3}, seed=seed)
+    assert res2.hearing_rate[k2] < 0.8 * alone.hearing_rate[k0]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_stop_near_a_corner_does_not_make_it_a_point(seed) -> None:
+    # a stop 0.6 m from the corner, on another side than the others: the directions span
+    # 112 degrees, and a 0.1 m error of the corner could swing that stop's by 19
+    stops = [*NEAR4, [3.0, 0.8]]
+    strict, ks, true = _heard_by(
+        stops,
+        {0, 1, 2, 3, 4},
+        seed=seed,
+        config=FixedPathConfig(min_group_pairs=1, corner_position_error=0.0),
+    )
+    assert strict.view_span[ks] > np.radians(110.0)
+    assert len(strict.map.corners) == 0
+    res, k, _ = _heard_by(stops, {0, 1, 2, 3, 4}, seed=seed)
+    assert res.view_span[k] < np.radians(100.0)
+    assert len(res.map.corners) == 1 and np.linalg.norm(res.map.corners[0] - true) < 0.05
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_corner_heard_from_around_that_no_point_fits_is_left_out(seed) -> None:
+    stops, spot = [[0.0, 0.0], [3.0, 0.0], [1.5, 2.5]], [1.5, 0.9]
+    room = _single(corner=spot)
+    res = _map_from_stops(room, stops, seed)
+    k = int(np.argmin(np.linalg.norm(res.states - spot, axis=1)))
+    # mapped as the point model's fit, not at the corner model's state
+    assert len(res.map.points) == 1
+    assert np.linalg.norm(res.map.points[0] - res.states[k]) > 1e-6
+    assert not res.screened[k]
+    out = _map_from_stops(room, stops, seed, FixedPathConfig(corner_point_cost=0.0))
+    assert len(out.map.corners) == 0 and len(out.map.points) == 0
+    assert out.screened[k]
+
+
+def test_a_low_rate_corner_comes_back_only_where_two_mapped_walls_meet() -> None:
+    room = rectangle_room()
+    inner = [2.5, 2.0]  # a corner heard from around, away from every wall
+    room = SyntheticRoom(
+        walls=room.walls, corners=np.vstack([room.corners, [inner]]), points=room.points
+    )
+    poses, pairs, ids = _stop_echoes(room, STOPS, 1)
+    # every corner under the rate; the mapped walls end 1.2-1.5 m short of the corners
+    base = {"corner_rate": 0.9, "corner_span": np.inf, "extend": 1.6}
+    low = map_fixed_path(pairs, ids, poses, ANTENNAS, FixedPathConfig(**base))
+    assert len(low.map.corners) == 0 and len(low.map.walls) == 4
+    back = map_fixed_path(
+        pairs, ids, poses, ANTENNAS, FixedPathConfig(**base, corner_junction=0.15)
+    ).map.corners
+    d = np.linalg.norm(back[:, None] - room.corners[None, :4], axis=-1)
+    assert len(back) == 4 and np.all(d.min(1) < 0.05), back
+    assert np.linalg.norm(back - inner, axis=1).min() > 1.0
+
+
+def test_the_span_wraps_around_minus_pi() -> None:
+    start, width = _arc(np.radians([170.0, -170.0, 175.0]))
+    assert width == pytest.approx(np.radians(20.0))
+    assert start == pytest.approx(np.radians(170.0))
+    assert _arc(np.radians([10.0, 100.0]))[1] == pytest.approx(np.radians(90.0))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_far_stop_that_hears_a_corner_a_little_does_not_set_its_hearing_distance(seed) -> None:
+    # a stop 5 m away hears the corner in 4 looks (a stop that counts, but under a fifth of
+    # the pairs); two stops between it and the corner hear nothing: the hearing distance is
+    # the 0.8 quantile of the pairs' stops, the rate that of the four near stops
+    alone, k0, _ = _heard_by(NEAR4, {0, 1, 2, 3}, seed=seed)
+    stops = [*NEAR4, [-1.0, 0.6], [-1.0, -0.2], [-2.0, 0.2]]
+    res, k, true = _heard_by(stops, {0, 1, 2, 3}, seed=seed, few=(6, 4))
+    assert res.stops[k] == 5
+    assert res.hearing_rate[k] == pytest.approx(alone.hearing_rate[k0], rel=1e-6)
+    assert len(res.map.corners) == 1 and np.linalg.norm(res.map.corners[0] - true) < 0.05

@@ -154,7 +154,8 @@ class RobotDataset:
     ----------
     frequencies : ndarray, float64, shape (K,), Hz
     stops : ndarray, float64, shape (S, 2), m
-    headings : ndarray, float64, shape (H,), rad
+    headings : ndarray, float64, shape (S, H), rad
+        World heading of every stop's acquisitions (``RobotModel.stop_headings``).
     response : ndarray, complex64, shape (S, H, 2, K)
         ``1/d``-scaled transfer functions of rx1 and rx2 (multiply by ``c / (4 pi f)``
         for the Friis scale).
@@ -182,7 +183,7 @@ def robot_arrays(
     else:
         pattern = OmniPattern()
     x, y = rb.stops[stop]
-    heads = np.arange(rb.n_headings) * rb.heading_step
+    heads = rb.stop_headings()[stop]
     side = np.array([0.5, -0.5]) * rb.baseline
     # Receiver index 2 h + j: heading h, rx(j+1) at (0, side_j) in the robot frame.
     rx_pos = np.stack(
@@ -228,7 +229,7 @@ def robot_dataset(
     return RobotDataset(
         frequencies=freqs,
         stops=np.array([scenario.robot.stops[s] for s in idx], float),
-        headings=np.arange(n_h) * scenario.robot.heading_step,
+        headings=scenario.robot.stop_headings()[idx],
         response=resp,
         n_paths=n_paths,
     )

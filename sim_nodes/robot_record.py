@@ -252,7 +252,8 @@ def write_robot_recording(
     power = float(np.mean(np.abs(resp) ** 2, dtype=np.float64))
     sigma = math.sqrt(power / 10 ** (snr_db / 10) / 2)  # per real and imaginary part
     poses = [
-        [(float(x), float(y), 0.0, float(h)) for h in dataset.headings] for x, y in dataset.stops
+        [(float(x), float(y), 0.0, float(h)) for h in heads]
+        for (x, y), heads in zip(dataset.stops, dataset.headings, strict=True)
     ]
     flat = [q for stop in poses for q in stop]
     odom = odometry_increments(flat, np.random.default_rng([seed, 1]), slip)

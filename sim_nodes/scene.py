@@ -364,9 +364,13 @@ class NodeModel(_Model):
 class RobotModel(_Model):
     """``[robot]``: a bat-type robot that stops and turns on the spot (a data-set scenario).
 
-    At each stop (x, y) it turns through ``n_headings`` headings ``k heading_step`` (rad) and
-    records one acquisition per heading with its ``tx`` and the two receivers at
-    (0, +-``baseline``/2) in its frame, all at ``height``.
+    At each stop (x, y) it turns through ``n_headings`` headings ``start + k heading_step``
+    (rad) and records one acquisition per heading with its ``tx`` and the two receivers at
+    (0, +-``baseline``/2) in its frame, all at ``height``. ``turn_start`` sets ``start``:
+    ``"world"`` (the default) 0 at every stop; ``"drive"`` the heading of the straight drive
+    that reached the stop (``atan2`` of the step from the previous stop), as a robot that turns
+    from the direction it arrived in; the first stop starts at ``first_heading`` (rad, default
+    0), a stop at the previous stop's position keeps the previous start.
     """
 
     id: str = Field("robot", pattern=r"^[A-Za-z0-9_-]+$")
@@ -379,12 +383,33 @@ class RobotModel(_Model):
     beamwidth: float = Field(math.radians(60.0), gt=0.0, le=2 * math.pi)
     beamwidth_frequency: float = Field(9e9, ge=0.0)
     pattern_table: str | None = None
+    turn_start: Literal["world", "drive"] = "world"
+    first_heading: float | None = Field(None, ge=-2 * math.pi, le=2 * math.pi)
 
     @model_validator(mode="after")
     def _table(self) -> RobotModel:
         if (self.pattern == "table") != (self.pattern_table is not None):
             raise _FieldError("pattern_table", 'give a table file exactly when pattern = "table"')
+        if self.first_heading is not None and self.turn_start != "drive":
+            raise _FieldError("first_heading", 'applies only with turn_start = "drive"')
         return self
+
+    def stop_headings(self) -> np.ndarray:
+        """World headings (rad) of every stop's acquisitions, shape (stops, n_headings).
+
+        Row ``s`` is ``start_s + k heading_step`` with ``start_s`` from ``turn_start`` (class
+        docstring): 0, or the drive direction ``atan2(dy, dx)`` from stop ``s - 1`` to ``s``.
+        """
+        stops = np.asarray(self.stops, float)
+        start = np.zeros(len(stops))
+        if self.turn_start == "drive":
+            start[0] = self.first_heading or 0.0
+            d = np.diff(stops, axis=0)
+            moved = np.hypot(d[:, 0], d[:, 1]) > 1e-9
+            drive = np.arctan2(d[:, 1], d[:, 0])
+            for s in range(1, len(stops)):  # a stop that did not move keeps the last start
+                start[s] = drive[s - 1] if moved[s - 1] else start[s - 1]
+        return start[:, None] + np.arange(self.n_headings) * self.heading_step
 
 
 class AnchorModel(_Model):
@@ -596,11 +621,11 @@ class Scenario(_Model):
         if self.robot is not None:
             rb = self.robot
             stops = np.array(rb.stops, float)
-            heads = np.arange(rb.n_headings) * rb.heading_step
+            heads = rb.stop_headings()
             side = np.array([0.5, -0.5]) * rb.baseline
             # Per stop: the Tx, then rx1 and rx2 at every heading.
-            rx_x = stops[:, None, None, 0] - np.sin(heads)[None, :, None] * side
-            rx_y = stops[:, None, None, 1] + np.cos(heads)[None, :, None] * side
+            rx_x = stops[:, None, None, 0] - np.sin(heads)[:, :, None] * side
+            rx_y = stops[:, None, None, 1] + np.cos(heads)[:, :, None] * side
             rx = np.stack([rx_x, rx_y], axis=-1).reshape(len(stops), -1, 2)
             xy = np.concatenate([stops[:, None, :], rx], axis=1).reshape(-1, 2)
             pos = np.concatenate([pos, np.column_stack([xy, np.full(len(xy), rb.height)])])

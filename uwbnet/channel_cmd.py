@@ -59,14 +59,16 @@ def generate_dataset(
     n_h, _, n_f = first.response.shape[1:]
     resp = np.zeros((total, n_h, 2, n_f), np.complex64)
     n_paths = np.zeros((total, n_h, 2), np.int64)
+    heads = np.zeros((total, n_h))
     for stops, ds, _ in results:
         resp[stops] = ds.response
         n_paths[stops] = ds.n_paths
+        heads[stops] = ds.headings
     cpu = sum(r[2] for r in results)
     return RobotDataset(
         frequencies=first.frequencies,
         stops=np.array(sc.robot.stops[:total], float),
-        headings=first.headings,
+        headings=heads,
         response=resp,
         n_paths=n_paths,
     ), cpu

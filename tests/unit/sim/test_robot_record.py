@@ -86,7 +86,7 @@ def test_noise_has_the_documented_snr(tmp_path: Path) -> None:
     ds = RobotDataset(
         frequencies=f,
         stops=np.array([[2.0, 2.0]]),
-        headings=np.array([0.0]),
+        headings=np.array([[0.0]]),
         response=np.broadcast_to(one, (1, 1, 2, f.size)).copy(),
         n_paths=np.ones((1, 1, 2), np.int64),
     )
@@ -159,3 +159,51 @@ def test_sim_rejects_a_bad_stop_count(small_toml: Path, tmp_path: Path) -> None:
     proc = uwbnet("sim", str(small_toml), "--out", str(out), "--duration", "3")
     assert_one_line_error(proc, "--duration does not apply")
     assert not out.exists()
+
+
+def test_drive_turns_record_their_poses_and_the_drives_odometry(
+    small_toml: Path, tmp_path: Path
+) -> None:
+    """Three stops with turn_start = "drive": each turn starts at the drive's heading, the
+    receivers really turn with it, and the odometry between stops carries the drive's yaw."""
+    from sim_nodes.propagation import hybrid_channel, robot_dataset
+    from sim_nodes.robot_record import OdometrySlip
+
+    text = small_toml.read_text().replace("n_headings = 3", "n_headings = 4")
+    text = text.replace("heading_step = 0.5", f"heading_step = {math.pi / 2}")
+    text = text.replace(
+        "stops = [[1.0, 1.5], [1.5, 1.0]]", "stops = [[1.0, 1.5], [2.0, 1.5], [2.0, 2.0]]"
+    )
+    world = tmp_path / "world.toml"
+    world.write_text(text)
+    drive = tmp_path / "drive.toml"
+    drive.write_text(text + 'turn_start = "drive"\nfirst_heading = 0.3\n')
+    sc = load_scenario(str(drive))
+    ds = robot_dataset(sc, hybrid_channel(sc, np.random.default_rng(0)))
+    q = math.pi / 2
+    starts = np.array([0.3, 0.0, q])  # first_heading, east, north
+    assert ds.headings == pytest.approx(starts[:, None] + q * np.arange(4))
+    # Stop 2 starts at world heading pi/2: its heading k is the default turn's heading k + 1.
+    sw = load_scenario(str(world))
+    dw = robot_dataset(sw, hybrid_channel(sw, np.random.default_rng(0)))
+    assert np.allclose(ds.response[2, :3], dw.response[2, 1:], rtol=1e-3, atol=1e-6)
+    assert not np.allclose(ds.response[2], dw.response[2], rtol=1e-3, atol=1e-6)
+
+    out = tmp_path / "drive.mcap"
+    still = OdometrySlip(translation=0.0, rotation=0.0, heading_per_metre=0.0, floor=(0.0, 0.0))
+    write_robot_recording(sc, ds, out, seed=0, slip=still)
+    irs = [m for _, m in _messages(out) if isinstance(m, Ir)]
+    stops = [(1.0, 1.5), (2.0, 1.5), (2.0, 2.0)]
+    expected = [
+        (x, y, 0.0, a + q * k) for (x, y), a in zip(stops, starts, strict=True) for k in range(4)
+    ]
+    assert np.array([ir.pose for ir in irs]) == pytest.approx(np.array(expected))
+    odom = np.array([ir.odom for ir in irs])
+    assert odom[[1, 2, 3, 5, 6, 7, 9, 10, 11]] == pytest.approx(np.tile([0.0, 0.0, q], (9, 1)))
+    # Stop 0's last heading 0.3 + 3 pi/2, then 1 m east: yaw change to 0 is -(0.3 + 3 pi/2),
+    # wrapped to pi/2 - 0.3; the drive seen from the last heading is 1 m at -(0.3 + 3 pi/2).
+    last = 0.3 + 3 * q
+    assert odom[4] == pytest.approx([math.cos(last), -math.sin(last), q - 0.3])
+    # Stop 1 ends at 3 pi/2 (south), drives 0.5 m north (backwards), turns to north: +-pi.
+    assert odom[8, :2] == pytest.approx([-0.5, 0.0], abs=1e-9)
+    assert abs(odom[8, 2]) == pytest.approx(math.pi)

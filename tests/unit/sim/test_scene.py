@@ -6,6 +6,7 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sim_nodes.scene import ScenarioError, load_scenario, parse_scenario, scenario_names
@@ -236,3 +237,40 @@ def test_measured_pattern_table_is_read_relative_to_the_scenario(tmp_path: Path)
     scen.write_text(text.replace('pattern = "omni"', 'pattern = "table"'))
     with pytest.raises(ScenarioError, match=r"robot\.pattern_table"):
         load_scenario(str(scen))
+
+
+# --- issue 8: where each stop's turn starts ---------------------------------------------------
+
+
+def test_robot_turns_start_at_world_heading_zero_by_default() -> None:
+    rb = load_scenario("room_pillar").robot
+    heads = rb.stop_headings()
+    assert rb.turn_start == "world" and heads.shape == (len(rb.stops), rb.n_headings)
+    turn = np.arange(rb.n_headings) * rb.heading_step
+    assert np.array_equal(heads, np.tile(turn, (len(rb.stops), 1)))
+
+
+def test_drive_turns_start_where_the_robot_drove() -> None:
+    data = _room_pillar()
+    # Three stops: east 1 m, then north-west; the third stop repeats the second.
+    data["robot"] |= {
+        "stops": [[2.0, 1.0], [3.0, 1.0], [2.0, 2.0], [2.0, 2.0]],
+        "turn_start": "drive",
+        "first_heading": 0.4,
+    }
+    heads = parse_scenario(data).robot.stop_headings()
+    step = data["robot"]["heading_step"]
+    start = heads - np.arange(heads.shape[1]) * step
+    assert start == pytest.approx(np.repeat([[0.4], [0.0], [0.75 * np.pi], [0.75 * np.pi]], 120, 1))
+    data["robot"].pop("first_heading")
+    assert parse_scenario(data).robot.stop_headings()[0, 0] == 0.0
+
+
+def test_turn_start_options_are_validated() -> None:
+    data = _room_pillar()
+    data["robot"]["first_heading"] = 0.5  # only with turn_start = "drive"
+    assert _error(data).startswith("test.toml: robot.first_heading: applies only with")
+    data["robot"] |= {"turn_start": "sideways"}
+    assert "robot.turn_start" in _error(data)
+    data["robot"] |= {"turn_start": "drive", "first_heading": 7.0}
+    assert "robot.first_heading" in _error(data)

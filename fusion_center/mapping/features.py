@@ -485,7 +485,8 @@ def close_outline(
       closed with a box's face on room_pillar);
     * ``X`` lies beyond (or at most ``overshoot`` inside) one end of each, at most ``reach``
       beyond it; for a convex corner at most ``convex_reach`` beyond or ``convex_trim``
-      inside (see below);
+      inside (see below); for a concave corner with a corridor end wall
+      (``the_map.end_walls``) at most ``end_reach`` beyond;
     * each wall approaches ``X`` from the same side of the other as the robot saw that one
       from (:func:`free_side`): both from the free side is a concave (room) corner, both
       from behind a convex one (the inner corner of an L, a pillar's edge); mixed is no

@@ -191,3 +191,17 @@ def test_a_landmark_heard_from_one_stop_down_a_corridor_becomes_its_end_wall() -
     for pairs, stops in ((1, 1), (4, 2)):
         res = _one_stop_result([POINT], [[8.0, 1.2]], [pairs], [stops], [[3.0, 1.2]])
         assert _with_end_walls(sides, res, min_pairs=2) is sides
+
+
+def test_end_walls_are_mapped_with_state_space_association_only_by_default() -> None:
+    from fusion_center.mapping import SlamConfig
+
+    def mapper(association: str) -> EchoSlamMapper:
+        slam = SlamConfig(association=association)
+        return EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
+
+    # measured: on room_pillar's measurement-space run one became a wall matching no face
+    assert mapper("state").maps_end_walls()
+    assert not mapper("measurement").maps_end_walls()
+    assert mapper("measurement").maps_end_walls(True)
+    assert not mapper("state").maps_end_walls(False)

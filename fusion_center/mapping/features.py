@@ -59,11 +59,16 @@ class SlamMap:
         Segments ``[x1, y1, x2, y2]``, m.
     corners, points : ndarray, shape (k, 2)
         Positions, m.
+    end_walls : ndarray of int, shape (e,)
+        Indices into ``walls`` of corridor end walls heard from one stop
+        (:func:`corridor_end_walls`); :func:`close_outline` may extend the side walls to
+        them farther (``end_reach``).
     """
 
     walls: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
     corners: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     points: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    end_walls: npt.NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
 
 
 def _normal(alpha: FloatArray) -> FloatArray:
@@ -246,6 +251,115 @@ def build_map(
     return SlamMap(walls=segs, corners=pts[corner], points=pts[~corner])
 
 
+def corridor_end_walls(
+    walls: npt.ArrayLike,
+    reflection: npt.ArrayLike,
+    observer: npt.ArrayLike,
+    *,
+    max_angle: float = np.radians(20.0),
+    tolerance: float = 0.3,
+) -> FloatArray:
+    """End walls of corridors from landmarks heard from one stop only.
+
+    From one position a wall and a corner (or a point) give the same echoes: the image of
+    the transmitter is fixed while the robot turns on the spot (Fig. 19 of the CoLOR chapter:
+    a wall's image ``2 f - tx`` with ``f`` the foot of the perpendicular, a corner's
+    ``2 c - tx``), so a landmark heard from one stop is a reflection point ``f`` whose kind
+    the echoes cannot tell. Between two mapped near-parallel walls (a corridor) it is taken
+    for the corridor's END WALL through ``f``, perpendicular to its bearing from the stop:
+
+    * two mapped walls run within ``max_angle`` of the bearing and of each other, the stop
+      lies between their lines and ``f`` too (on the stop's side of each);
+    * neither side wall is mapped more than ``tolerance`` past the end line (a wall there
+      would have hidden them; an object in the corridor is no end wall);
+    * no mapped wall crosses the line of sight from the stop to ``f``;
+    * a corner there would need walls through ``f`` across the corridor, and none is mapped
+      (no mapped wall within ``tolerance`` of ``f``, which also skips an end already mapped).
+
+    The end wall spans the gap between the two side lines; of several candidates in one
+    corridor and direction the nearest stands (a longer echo down a corridor is a multipath
+    image beyond its end). Beyond the chapter (a geometric rule on the map, as
+    :func:`build_map`'s classification of corners; docs/mapping.md "Corridor end walls").
+
+    Parameters
+    ----------
+    walls : array_like, shape (w, 4)
+        Mapped segments ``[x1, y1, x2, y2]``, m.
+    reflection : array_like, shape (k, 2)
+        Reflection points of the single-stop landmarks (a wall's foot of the perpendicular
+        from the stop, a corner's or point's position), m, the walls' frame.
+    observer : array_like, shape (k, 2)
+        The stop each was heard from, m.
+    max_angle : float
+        Largest angle between the bearing and a side wall, and between the side walls, rad.
+    tolerance : float
+        Side walls may run this far past the end line, and a mapped wall this close to the
+        reflection point makes it no new end wall, m.
+
+    Returns
+    -------
+    ndarray, shape (e, 4)
+        The end walls' segments, m.
+    """
+    w = np.asarray(walls, float).reshape(-1, 4)
+    f = np.asarray(reflection, float).reshape(-1, 2)
+    o = np.asarray(observer, float).reshape(-1, 2)
+    if f.shape != o.shape:
+        raise ValueError("corridor_end_walls: reflection and observer need one row each")
+    if not (0.0 < max_angle < np.pi / 2) or not tolerance >= 0.0:
+        raise ValueError("corridor_end_walls: max_angle or tolerance out of range")
+    ok = np.isfinite(f).all(1) & np.isfinite(o).all(1)
+    f, o = f[ok], o[ok]
+    if len(w) < 2 or len(f) == 0:
+        return np.zeros((0, 4))
+    p, q = w[:, :2], w[:, 2:]
+    length = np.maximum(np.linalg.norm(q - p, axis=1), 1e-12)
+    u = (q - p) / length[:, None]
+    nrm = np.stack([-u[:, 1], u[:, 0]], -1)
+    best: dict[tuple[int, int, int], tuple[float, FloatArray]] = {}
+    cos_max = np.cos(max_angle)
+    for k in range(len(f)):  # a handful of single-stop landmarks
+        dist = float(np.linalg.norm(f[k] - o[k]))
+        if dist < 1e-6:
+            continue
+        b = (f[k] - o[k]) / dist
+        side_o = np.sum((o[k] - p) * nrm, 1)
+        side_f = np.sum((f[k] - p) * nrm, 1)
+        along = np.abs(u @ b) >= cos_max
+        # the reflection point on the stop's side of the wall (not beyond it)
+        cand = np.flatnonzero(along & (side_o * side_f > 0.0))
+        if cand.size < 2:
+            continue
+        if np.any(_point_segment_distance(f[k][None], p, q) < tolerance):
+            continue
+        if np.any(_segments_cross(o[k][None], f[k][None], p, q)):
+            continue
+        # the nearest wall on each side of the stop (the corridor's sides)
+        toward = nrm[cand] * np.sign(side_o[cand])[:, None]  # normal towards the stop
+        left = cand[toward @ np.array([-b[1], b[0]]) < 0.0]
+        right = cand[toward @ np.array([-b[1], b[0]]) > 0.0]
+        if left.size == 0 or right.size == 0:
+            continue
+        i = int(left[np.argmin(np.abs(side_o[left]))])
+        j = int(right[np.argmin(np.abs(side_o[right]))])
+        if abs(float(u[i] @ u[j])) < cos_max:
+            continue
+        # end points: the end line (through f, normal b) meets the two side lines
+        ends = []
+        for s in (i, j):
+            den = float(u[s] @ b)
+            ends.append(p[s] + (float((f[k] - p[s]) @ b) / den) * u[s])
+        # neither side wall mapped past the end line
+        reach_past = np.sum((np.vstack([p[[i, j]], q[[i, j]]]) - f[k]) * b, 1)
+        if np.any(reach_past > tolerance):
+            continue
+        # one end per corridor and direction (the direction against a fixed side's tangent)
+        key = (min(i, j), max(i, j), int(np.sign(float(u[min(i, j)] @ b))))
+        if key not in best or dist < best[key][0]:
+            best[key] = (dist, np.r_[ends[0], ends[1]])
+    return np.array([v[1] for v in best.values()], float).reshape(-1, 4)
+
+
 def _cross2(a: FloatArray, b: FloatArray) -> FloatArray:
     """z component of the 2-D cross product ``a x b`` (broadcast over leading axes)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
@@ -358,6 +472,7 @@ def close_outline(
     witness_hide: float = 0.3,
     convex_reach: float = 3.0,
     convex_trim: float = 2.0,
+    end_reach: float = 6.0,
 ) -> SlamMap:
     """Close the outline: extend mapped walls that meet to their intersection (the corner
     the room must have there) and add the concave corners this implies.
@@ -370,7 +485,8 @@ def close_outline(
       closed with a box's face on room_pillar);
     * ``X`` lies beyond (or at most ``overshoot`` inside) one end of each, at most ``reach``
       beyond it; for a convex corner at most ``convex_reach`` beyond or ``convex_trim``
-      inside (see below);
+      inside (see below); for a concave corner with a corridor end wall
+      (``the_map.end_walls``) at most ``end_reach`` beyond;
     * each wall approaches ``X`` from the same side of the other as the robot saw that one
       from (:func:`free_side`): both from the free side is a concave (room) corner, both
       from behind a convex one (the inner corner of an L, a pillar's edge); mixed is no
@@ -441,6 +557,11 @@ def close_outline(
         2.5 m beyond the first leg's mapped inner wall on corridor_L_sparse).
     convex_trim : float
         Largest trim of a wall running past a convex corner, m (default 2.0).
+    end_reach : float
+        Largest extension of a side wall to a corridor end wall (``the_map.end_walls``,
+        :func:`corridor_end_walls`) at a concave corner, m (default 6.0: the end wall is
+        heard from one stop at most ``max_range`` / 2 = 5-5.5 m away, and the side walls are
+        mapped up to about that stop's feet; corridor_L_sparse: 5.2 m).
 
     Returns
     -------
@@ -464,6 +585,7 @@ def close_outline(
         ("witness_hide", witness_hide, witness_hide >= 0.0),
         ("convex_reach", convex_reach, convex_reach > 0.0),
         ("convex_trim", convex_trim, convex_trim >= 0.0),
+        ("end_reach", end_reach, end_reach > 0.0),
     ):
         if not ok_:  # NaN fails too
             raise ValueError(f"close_outline: {name} out of range (got {value})")
@@ -502,6 +624,12 @@ def close_outline(
     # a convex corner's walls may reach farther and be trimmed more: past X a wall of a
     # convex corner would stand in the free space the other wall was seen across
     limit = np.where(convex, convex_reach, reach)
+    # a confirmed corridor end wall (heard straight down between its side walls) closes
+    # with them farther: nothing else could have been heard of the side walls past the stop
+    is_end = np.zeros(len(walls), bool)
+    ends_idx = np.asarray(the_map.end_walls, np.intp).reshape(-1)
+    is_end[ends_idx[(ends_idx >= 0) & (ends_idx < len(walls))]] = True
+    limit = np.where(concave & (is_end[:, None] | is_end[None, :]), end_reach, limit)
     trim = np.where(convex, convex_trim, overshoot)
     ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= limit) & (beyond >= -trim)
     # a trim only on walls longer than two trims: two would leave a few centimetres of wall
@@ -605,4 +733,4 @@ def close_outline(
         if concave[i, j] and not near_corner[c_]:
             new_corners.append(x[c_])
     corners = np.vstack([mapped_corners, np.array(new_corners).reshape(-1, 2)])
-    return SlamMap(walls=out, corners=corners, points=the_map.points)
+    return SlamMap(walls=out, corners=corners, points=the_map.points, end_walls=the_map.end_walls)

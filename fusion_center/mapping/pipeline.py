@@ -15,13 +15,14 @@ import numpy as np
 import numpy.typing as npt
 
 from fusion_center.mapping.echoes import EnvelopePeakEchoExtractor, pair_echoes
-from fusion_center.mapping.features import SlamMap, build_map
+from fusion_center.mapping.features import SlamMap, build_map, corridor_end_walls
 from fusion_center.mapping.grouping import KalmanEchoGrouper
 from fusion_center.mapping.models import CORNER, POINT, WALL
 from fusion_center.mapping.rbpf import PoseEstimate2D, RbpfSlam, SlamConfig
 from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.smoothing import (
     LeastSquaresPathMapSmoother,
+    SmoothedPathMap,
     SmootherConfig,
     smoothed_landmark_set,
 )
@@ -526,6 +527,7 @@ class EchoSlamMapper:
         overlap_angle: float = np.radians(12.0),
         extend: float = 1.0,
         min_pairs_step: float | None = np.radians(3.0),
+        end_walls: bool | None = None,
     ) -> tuple[SlamMap, FloatArray] | None:
         """Map and path after joint least-squares smoothing of the whole run (graph SLAM,
         :class:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother`; beyond the
@@ -550,6 +552,13 @@ class EchoSlamMapper:
         min_pairs_step : float or None
             The turning step (rad) at which ``min_pairs`` holds; a robot turning in coarser
             steps needs fewer (:func:`scaled_min_pairs`; None: ``min_pairs`` as given).
+        end_walls : bool or None
+            Map a landmark heard from one stop (with ``min_pairs``) straight down a mapped
+            corridor as the corridor's end wall
+            (:func:`~fusion_center.mapping.features.corridor_end_walls`; beyond the chapter).
+            None: with state-space association only (coarse turning steps; on room_pillar
+            seed 0 mapped by the filter in measurement space, 3-degree steps, 27 landmarks
+            came from one stop and one became a wall matching no face).
 
         Returns
         -------
@@ -585,7 +594,14 @@ class EchoSlamMapper:
             overlap_angle=overlap_angle,
             extend=extend,
         )
+        if self.maps_end_walls(end_walls):
+            the_map = _with_end_walls(the_map, res, min_pairs)
         return the_map, np.column_stack([t, res.poses])
+
+    def maps_end_walls(self, end_walls: bool | None = None) -> bool:
+        """Whether :meth:`smooth` maps corridor end walls heard from one stop: ``end_walls``,
+        or for None with state-space association only (see :meth:`smooth`)."""
+        return bool(end_walls) if end_walls is not None else not self.measurement_space
 
     def smoother_config(self) -> SmootherConfig:
         """:meth:`smooth`'s default :class:`SmootherConfig`: the filter's range and slip noise
@@ -609,3 +625,30 @@ class EchoSlamMapper:
         """The current map of the best particle (:func:`~fusion_center.mapping.features.build_map`
         of :meth:`RbpfSlam.landmarks`)."""
         return build_map(self.filter.landmarks(min_hits=min_hits))
+
+
+def _with_end_walls(the_map: SlamMap, res: SmoothedPathMap, min_pairs: int) -> SlamMap:
+    """``the_map`` with the corridor end walls of ``res``'s landmarks heard from one stop
+    (:func:`~fusion_center.mapping.features.corridor_end_walls`) appended and listed in
+    ``end_walls``. A wall's reflection point is the foot of the perpendicular from the
+    stop, a corner's or point's its position (the same image from one stop, Fig. 19)."""
+    one = np.flatnonzero((res.stops == 1) & (res.pairs >= min_pairs))
+    if one.size == 0 or res.observer.shape[0] != res.kinds.size:
+        return the_map
+    obs = res.observer[one]
+    st = res.states[one]
+    refl = st.copy()
+    wall = res.kinds[one] == WALL
+    if np.any(wall):
+        nrm = np.stack([np.cos(st[wall, 0]), np.sin(st[wall, 0])], -1)
+        refl[wall] = obs[wall] + (st[wall, 1] - np.sum(nrm * obs[wall], 1))[:, None] * nrm
+    ends = corridor_end_walls(the_map.walls, refl, obs)
+    if len(ends) == 0:
+        return the_map
+    n = len(the_map.walls)
+    return SlamMap(
+        walls=np.vstack([the_map.walls, ends]),
+        corners=the_map.corners,
+        points=the_map.points,
+        end_walls=np.r_[np.asarray(the_map.end_walls, np.intp), n + np.arange(len(ends))],
+    )

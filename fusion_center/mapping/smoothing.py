@@ -31,7 +31,7 @@ from which a landmark's echoes come (``stops``) is the support used to prune the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -158,6 +158,9 @@ class SmoothedPathMap:
         ``(t_min, t_max)`` of the specular points along a wall (NaN for other kinds), m.
     cost_before, cost_after : float
         Robust cost of the first and the last optimisation round, at their start and end.
+    observer : ndarray, shape (l, 2)
+        Mean robot position ``(x, y)`` of the acquisitions whose pairs are associated with
+        each landmark (NaN for none), m: for a landmark heard from one stop, that stop.
     """
 
     poses: FloatArray
@@ -168,6 +171,7 @@ class SmoothedPathMap:
     wall_extent: FloatArray
     cost_before: float
     cost_after: float
+    observer: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -798,6 +802,15 @@ class LeastSquaresPathMapSmoother:
             lo_i = start + np.floor(q * (count - 1)).astype(int)
             hi_i = start + np.ceil((1.0 - q) * (count - 1)).astype(int)
             extent[seen] = np.column_stack([t[lo_i[seen]], t[hi_i[seen]]])
+        observer = np.full((n_lm, 2), np.nan)
+        if np.any(used):
+            li = assoc[used]
+            count = np.bincount(li, minlength=n_lm)
+            seen = count > 0
+            for c in range(2):
+                observer[seen, c] = (
+                    np.bincount(li, out_poses[acq[used], c], minlength=n_lm)[seen] / count[seen]
+                )
         return SmoothedPathMap(
             poses=out_poses,
             kinds=kinds,
@@ -807,6 +820,7 @@ class LeastSquaresPathMapSmoother:
             wall_extent=extent,
             cost_before=cost_before,
             cost_after=cost_after,
+            observer=observer,
         )
 
 

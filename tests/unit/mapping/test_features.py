@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion_center.mapping.features import SlamMap, close_outline, free_side, merge_walls
+from fusion_center.mapping.features import (
+    SlamMap,
+    close_outline,
+    corridor_end_walls,
+    free_side,
+    merge_walls,
+)
 
 
 def _collinear():
@@ -272,3 +278,76 @@ def test_a_short_wall_is_not_trimmed() -> None:
     walls = [[-0.05, 0, 0.5, 0], [0, 1, 0, 3], [0.45, 1, 0.45, 3]]
     m, c = _closed(walls, [[0.225, 2]])
     np.testing.assert_array_equal(c.walls[0], m.walls[0])
+
+
+# corridor end walls heard from one stop (a wall and a corner echo alike from one position)
+
+_SIDES = [[0, 0, 4, 0], [4, 2.4, 0, 2.4]]  # a corridor along x, 2.4 m wide, mapped x 0..4
+
+
+def _sorted_ends(seg):
+    seg = np.asarray(seg).reshape(-1, 2, 2)
+    return np.sort(seg.reshape(-1, 2), axis=0)
+
+
+def test_a_single_stop_landmark_down_a_corridor_is_its_end_wall() -> None:
+    ends = corridor_end_walls(_SIDES, [[8.0, 1.2]], [[3.0, 1.2]])
+    assert ends.shape == (1, 4)
+    np.testing.assert_allclose(_sorted_ends(ends), [[8, 0], [8, 2.4]], atol=1e-12)
+    # a bearing 10 degrees off the corridor: the end line is perpendicular to the bearing
+    f = np.array([3.0, 1.2]) + 4.0 * np.array([np.cos(0.1745), np.sin(0.1745)])
+    ends = corridor_end_walls(_SIDES, [f], [[3.0, 1.2]])
+    b = (f - [3.0, 1.2]) / 4.0
+    d = ends.reshape(2, 2) - f
+    np.testing.assert_allclose(d @ b, 0.0, atol=1e-9)
+    np.testing.assert_allclose(np.sort(ends.reshape(2, 2)[:, 1]), [0.0, 2.4], atol=1e-9)
+
+
+def test_of_two_landmarks_down_one_corridor_the_nearest_is_the_end() -> None:
+    ends = corridor_end_walls(_SIDES, [[9.0, 1.0], [7.0, 1.3]], [[3.0, 1.2], [3.0, 1.2]])
+    np.testing.assert_allclose(_sorted_ends(ends)[:, 0], [7.0, 7.0], atol=0.05)
+    # the other way down the corridor is another end
+    ends = corridor_end_walls(_SIDES, [[9.0, 1.2], [-1.0, 1.2]], [[3.0, 1.2], [1.0, 1.2]])
+    assert len(ends) == 2
+
+
+def test_no_end_wall_off_the_corridor_or_where_a_wall_is_seen() -> None:
+    obs = [[3.0, 0.4]]
+    # 38 degrees off the corridor's direction: a corner or a point, not an end wall
+    assert len(corridor_end_walls(_SIDES, [[5.0, 2.0]], obs)) == 0
+    # one wall only: no corridor
+    assert len(corridor_end_walls(_SIDES[:1], [[8.0, 1.2]], [[3.0, 1.2]])) == 0
+    # a side wall mapped past the landmark: an object in the corridor, not its end
+    long_sides = [[0, 0, 9, 0], [9, 2.4, 0, 2.4]]
+    assert len(corridor_end_walls(long_sides, [[8.0, 1.2]], [[3.0, 1.2]])) == 0
+    # a mapped wall across the line of sight, or at the point (the end is mapped already)
+    across = [*_SIDES, [6, 0.5, 6, 2.0]]
+    assert len(corridor_end_walls(across, [[8.0, 1.2]], [[3.0, 1.2]])) == 0
+    at = [*_SIDES, [8.0, 0.8, 8.0, 1.6]]
+    assert len(corridor_end_walls(at, [[8.0, 1.2]], [[3.0, 1.2]])) == 0
+    # beyond a side wall (the landmark is not between the corridor's walls)
+    assert len(corridor_end_walls(_SIDES, [[8.0, 3.0]], [[3.0, 1.2]])) == 0
+    with pytest.raises(ValueError, match="one row each"):
+        corridor_end_walls(_SIDES, [[8.0, 1.2]], np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="out of range"):
+        corridor_end_walls(_SIDES, [[8.0, 1.2]], [[3.0, 1.2]], max_angle=0.0)
+
+
+def test_side_walls_close_with_a_confirmed_end_wall_from_farther() -> None:
+    # the end wall x = 8 lies 4 m beyond the side walls' mapped ends (x = 4): beyond reach
+    # (2.5 m) for two walls, within end_reach for a confirmed end wall
+    walls = [*_SIDES, [8, 0, 8, 2.4]]
+    path = [[1.0, 1.2], [3.0, 1.2]]
+    m = SlamMap(walls=np.array(walls, float), end_walls=np.array([2]))
+    c = close_outline(m, np.array(path))
+    np.testing.assert_allclose(c.walls[:2], [[0, 0, 8, 0], [8, 2.4, 0, 2.4]], atol=1e-12)
+    np.testing.assert_allclose(_sorted_ends(c.corners), [[8, 0], [8, 2.4]], atol=1e-12)
+    np.testing.assert_array_equal(c.end_walls, [2])
+    # the same wall not marked as an end wall: the side walls stay where they were heard
+    plain = close_outline(SlamMap(walls=np.array(walls, float)), np.array(path))
+    np.testing.assert_array_equal(plain.walls[:2], np.array(_SIDES, float))
+    # nor with end_reach below the gap
+    short = close_outline(m, np.array(path), end_reach=3.0)
+    np.testing.assert_array_equal(short.walls[:2], np.array(_SIDES, float))
+    with pytest.raises(ValueError, match=r"end_reach .*got 0\.0"):
+        close_outline(m, np.array(path), end_reach=0.0)

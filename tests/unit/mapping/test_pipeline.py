@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from fusion_center.mapping import EchoSlamMapper, MapperConfig
+from fusion_center.mapping.features import SlamMap
+from fusion_center.mapping.models import CORNER, POINT, WALL
+from fusion_center.mapping.pipeline import _with_end_walls
 from fusion_center.mapping.rbpf import PoseEstimate2D
+from fusion_center.mapping.smoothing import SmoothedPathMap
 
 ANTENNAS = np.array([[0.0, 0.0], [0.0, 0.5], [0.0, -0.5]])
 
@@ -155,3 +159,49 @@ def test_the_joint_per_stop_association_is_for_state_space_only() -> None:
     assert mapper("measurement").smoother_config().stop_gate == 0.0
     cfg = mapper("state").smoother_config()
     assert cfg.range_sigma == mapper("state").filter.config.range_sigma
+
+
+def _one_stop_result(kinds, states, pairs, stops, observer) -> SmoothedPathMap:
+    n = len(kinds)
+    return SmoothedPathMap(
+        poses=np.zeros((1, 3)),
+        kinds=np.array(kinds, np.int64),
+        states=np.array(states, float),
+        pairs=np.array(pairs, np.int64),
+        stops=np.array(stops, np.int64),
+        wall_extent=np.full((n, 2), np.nan),
+        cost_before=0.0,
+        cost_after=0.0,
+        observer=np.array(observer, float),
+    )
+
+
+def test_a_landmark_heard_from_one_stop_down_a_corridor_becomes_its_end_wall() -> None:
+    # side walls y = 0 and y = 2.4 mapped x 0..4; heard from the stop (3, 1.2) only: a point
+    # at (8, 1.2), or the wall x = 8 (alpha 0, d 8) whose foot from the stop is (8, 1.2)
+    sides = SlamMap(walls=np.array([[0, 0, 4, 0], [4, 2.4, 0, 2.4]], float))
+    for kind, state in ((POINT, [8.0, 1.2]), (CORNER, [8.0, 1.2]), (WALL, [0.0, 8.0])):
+        res = _one_stop_result([kind], [state], [4], [1], [[3.0, 1.2]])
+        m = _with_end_walls(sides, res, min_pairs=2)
+        assert len(m.walls) == 3
+        np.testing.assert_array_equal(m.end_walls, [2])
+        np.testing.assert_allclose(np.sort(m.walls[2, [0, 2]]), [8.0, 8.0], atol=1e-9)
+        np.testing.assert_allclose(np.sort(m.walls[2, [1, 3]]), [0.0, 2.4], atol=1e-9)
+    # too few pairs, or heard from two stops (then it is in the map by the 2-stop rule)
+    for pairs, stops in ((1, 1), (4, 2)):
+        res = _one_stop_result([POINT], [[8.0, 1.2]], [pairs], [stops], [[3.0, 1.2]])
+        assert _with_end_walls(sides, res, min_pairs=2) is sides
+
+
+def test_end_walls_are_mapped_with_state_space_association_only_by_default() -> None:
+    from fusion_center.mapping import SlamConfig
+
+    def mapper(association: str) -> EchoSlamMapper:
+        slam = SlamConfig(association=association)
+        return EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
+
+    # measured: on room_pillar's measurement-space run one became a wall matching no face
+    assert mapper("state").maps_end_walls()
+    assert not mapper("measurement").maps_end_walls()
+    assert mapper("measurement").maps_end_walls(True)
+    assert not mapper("state").maps_end_walls(False)

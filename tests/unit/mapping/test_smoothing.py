@@ -313,3 +313,25 @@ def test_the_joint_association_needs_a_common_offset() -> None:
     # two pairs are too few (stop_min_pairs = 3)
     two = smoother._associate_by_stop(lm, stop, pair[1:], landmark[1:], err[1:])
     assert two.tolist() == lm.tolist()
+
+
+def test_a_landmark_heard_from_one_stop_has_that_stop_as_its_observer() -> None:
+    _, odo, pairs, kinds, _t, init_poses, init_lm = _problem()
+    # echoes from the second stop only: every landmark heard is heard from there
+    one = [p if TURN <= i < 2 * TURN else np.zeros((0, 2)) for i, p in enumerate(pairs)]
+    cfg = SmootherConfig(range_sigma=0.02, slip_translation=0.01, slip_rotation=0.01, max_nfev=50)
+    res = LeastSquaresPathMapSmoother(ANTENNAS, cfg).smooth(
+        init_poses, odo, one, None, kinds, init_lm
+    )
+    seen = res.pairs > 0
+    assert seen.sum() >= 4
+    assert np.all(res.stops[seen] == 1)
+    # the mean position of the acquisitions heard: within the stop's own spread (its poses
+    # move by the turning slip) and near the true stop
+    stop = res.poses[TURN : 2 * TURN, :2]
+    spread = np.linalg.norm(stop - stop.mean(0), axis=1).max()
+    assert np.all(np.linalg.norm(res.observer[seen] - stop.mean(0), axis=1) <= spread)
+    np.testing.assert_allclose(
+        res.observer[seen], np.broadcast_to(STOPS[1], (seen.sum(), 2)), atol=0.05
+    )
+    assert np.all(np.isnan(res.observer[~seen]))

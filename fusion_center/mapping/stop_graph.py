@@ -412,7 +412,7 @@ class StopGraphConfig:
         bundle adjustment's poses and drifts are dropped for the refinement's (a solve that
         turns or moves the graph far outside what its input allows followed wrong
         correspondences; our guard, not from the cited methods). Default 5: room_pillar
-        seeds 0 / 1 and the held-out L hall (world starts) shift 1.2-2.7, room_pillar seed 0
+        seeds 0 / 1 and the held-out L hall (world starts) shift 1.3-2.7, room_pillar seed 0
         with drive starts 29 (its adjustment turned a wrong graph by 21 degrees: path
         0.727 -> 1.549 m); docs/mapping.md.
     closure_link_scatter : float

@@ -290,6 +290,12 @@ def _map_by_stops(
             path,
             res.bundle_unconverged,
         )
+    if res.bundle_dropped:
+        log.warning(
+            "%s: the bundle adjustment moved the stops by %.1f sigma (RMS); kept the graph's",
+            path,
+            res.bundle_shift,
+        )
     why = stops_unsuited(step, stats.stops, stats.stops_registered)
     if why is not None and auto:
         raise _NotStopsError(why)

@@ -362,7 +362,15 @@ class StopGraphConfig:
         Prior standard deviation ``(m, rad)`` of a loop closure's search around the current
         estimate.
     loop_rounds : int
-        Solve / look for loop closures rounds.
+        Solve / look for loop closures rounds (per level of ``loop_defer``).
+    loop_defer : tuple of float
+        Gate levels of the loop search, in sigmas: at level ``k`` a candidate whose prior
+        (the graph's marginal of the relative pose plus ``loop_window``) reaches beyond
+        ``window`` at ``k`` sigma in x, y or yaw is left for later; the search moves to the
+        next level (the last one: no gate) when a round adds no closure. A search capped
+        inside its prior's support accepts whatever local match it holds, so the closures
+        with narrow priors tighten the graph first (our addition, not from Lu and Milios).
+        Empty (default): one level, no gate. Measured: docs/mapping.md.
     closure_min_links : int
         ``TurnClosureConfig.min_links`` of the stops' turn closures (reflectors seen at both
         ends of the turn).
@@ -398,6 +406,15 @@ class StopGraphConfig:
         default: room_pillar seeds 0 / 1 path 0.107 / 0.055 -> 0.063 / 0.036 m, corners
         0.151 / 0.088 -> 0.092 / 0.096 m mean, corridor_L 0.066 -> 0.029 m (held-out rooms
         mixed, within 0.03 m either way: docs/mapping.md); 20-28 s more CPU on room_pillar.
+    bundle_max_shift : float
+        Largest RMS over the stops of the bundle adjustment's pose change, in Mahalanobis
+        distance under the pose graph's marginal covariance of each stop; beyond it the
+        bundle adjustment's poses and drifts are dropped for the refinement's (a solve that
+        turns or moves the graph far outside what its input allows followed wrong
+        correspondences; our guard, not from the cited methods). Default 5: room_pillar
+        seeds 0 / 1 and the held-out L hall (world starts) shift 1.3-2.7, room_pillar seed 0
+        with drive starts 29 (its adjustment turned a wrong graph by 21 degrees: path
+        0.727 -> 1.549 m); docs/mapping.md.
     closure_link_scatter : float
         ``TurnClosureConfig.link_scatter`` of the stops' turn closures, rad: a reflector
         whose world bearings scatter more than this in the first or the last third of the
@@ -440,6 +457,7 @@ class StopGraphConfig:
     loop_distance: float = 3.0
     loop_window: tuple[float, float] = (0.15, np.radians(3.0))
     loop_rounds: int = 3
+    loop_defer: tuple[float, ...] = ()
     closure_min_links: int = 1
     refine_turns: bool = True
     pair_count_weight: bool = True
@@ -448,6 +466,7 @@ class StopGraphConfig:
     refine_min_matches: int = 8
     refine_distance: float = 3.0
     bundle_adjust: bool = True
+    bundle_max_shift: float = 5.0
     closure_link_scatter: float = np.inf
 
     def __post_init__(self) -> None:
@@ -486,6 +505,14 @@ class StopGraphConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"StopGraphConfig.{name} must be an integer >= 1, got {v!r}")
+        if not self.bundle_max_shift > 0.0:  # inf: no guard (nan fails too)
+            raise ValueError(
+                f"StopGraphConfig.bundle_max_shift must be > 0, got {self.bundle_max_shift!r}"
+            )
+        if not all(np.isfinite(k) and k > 0.0 for k in self.loop_defer):
+            raise ValueError(
+                f"StopGraphConfig.loop_defer must be numbers > 0, got {self.loop_defer!r}"
+            )
         if not self.closure_link_scatter > 0.0:  # inf: no test
             raise ValueError(
                 "StopGraphConfig.closure_link_scatter must be > 0, "
@@ -1362,6 +1389,11 @@ class StopGraphResult:
     bundle_unconverged : int or None
         Solves of the bundle adjustment that stopped at their evaluation limit before
         converging (0: all converged; None: no bundle adjustment ran).
+    bundle_shift : float or None
+        RMS over the stops of the bundle adjustment's pose change in Mahalanobis distance
+        (``StopGraphConfig.bundle_max_shift``; None: no bundle adjustment ran).
+    bundle_dropped : bool
+        The bundle adjustment's result was dropped by ``bundle_max_shift``.
     """
 
     trajectory: FloatArray
@@ -1373,6 +1405,8 @@ class StopGraphResult:
     turn_coefficients: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     n_registered: int = 0
     bundle_unconverged: int | None = None
+    bundle_shift: float | None = None
+    bundle_dropped: bool = False
 
 
 class StopGraphPathEstimator:
@@ -1524,8 +1558,11 @@ class StopGraphPathEstimator:
             [cfg.loop_window[0] ** 2, cfg.loop_window[0] ** 2, cfg.loop_window[1] ** 2]
         )
         cand = np.flatnonzero(usable)
-        for _ in range(cfg.loop_rounds if cand.size > 2 else 0):
+        levels = [*cfg.loop_defer, 0.0]
+        level, rounds = 0, 0
+        while cand.size > 2 and level < len(levels):
             added = 0
+            gate = levels[level]
             # the search spans the current estimate's own uncertainty (the graph's marginal
             # of the relative pose), at least ``loop_window``: a fixed narrow window around
             # a stretch the graph holds only by odometry found wrong local matches
@@ -1536,9 +1573,11 @@ class StopGraphPathEstimator:
                 for j in later[d < cfg.loop_distance].tolist():
                     if (i, j) in tried:
                         continue
-                    tried.add((i, j))
                     prior = relative_pose(poses[i], poses[j])
                     cov = loop_cov + relative_covariance(poses, joint, i, j)
+                    if gate > 0.0 and _beyond_window(cov, cfg.window, gate):
+                        continue
+                    tried.add((i, j))
                     reg = self.registration.register_both(stops[i], stops[j], prior, cov)
                     regs.append((i, j, reg))
                     if reg.accepted:
@@ -1546,9 +1585,11 @@ class StopGraphPathEstimator:
                             GraphEdge(i=i, j=j, z=reg.pose, cov=reg.cov, robust=True, kind="loop")
                         )
                         added += 1
-            if added == 0:
-                break
-            poses, wt = graph.solve(poses)
+            rounds += 1
+            if added > 0:
+                poses, wt = graph.solve(poses)
+            if added == 0 or rounds >= cfg.loop_rounds:
+                level, rounds = level + 1, 0
         coef = np.zeros((n, 2))
         # the odometry edges from each turn's end without its end heading noise (the
         # refinements estimate that end)
@@ -1561,9 +1602,13 @@ class StopGraphPathEstimator:
             poses, coef, _ = refine_turns(
                 stops, graph.edges, wt, poses, odo, cfg, point_bias=self.point_bias
             )
-        unconverged = None
+        unconverged, shift, dropped = None, None, False
         if cfg.bundle_adjust and n > 1:
-            poses, coef, unconverged = self._bundle_adjust(log, stops, poses, coef, odo)
+            ba_poses, ba_coef, unconverged = self._bundle_adjust(log, stops, poses, coef, odo)
+            shift = pose_shift(poses, ba_poses, graph.covariance(poses, wt))
+            dropped = shift > cfg.bundle_max_shift
+            if not dropped:
+                poses, coef = ba_poses, ba_coef
         modes = coef.shape[1]
         stops = [
             replace(
@@ -1587,7 +1632,31 @@ class StopGraphPathEstimator:
             turn_coefficients=coef,
             n_registered=sum(1 for e in graph.edges if e.kind != "odometry"),
             bundle_unconverged=unconverged,
+            bundle_shift=shift,
+            bundle_dropped=dropped,
         )
+
+
+def pose_shift(before: FloatArray, after: FloatArray, cov: FloatArray) -> float:
+    """RMS over stops 1..n-1 of the Mahalanobis distance of the pose change
+    ``after - before`` ((n, 3) each, m and rad, yaw wrapped) under each stop's marginal
+    (3, 3) block of the joint covariance ``cov`` (3(n-1), 3(n-1); stop 0 fixed, as
+    :meth:`StopPoseGraph.covariance`). 0 for a single stop."""
+    d = np.asarray(after, float)[1:] - np.asarray(before, float)[1:]
+    if d.size == 0:
+        return 0.0
+    d[:, 2] = _wrap(d[:, 2])
+    m = d.shape[0]
+    blocks = np.asarray(cov, float).reshape(m, 3, m, 3)[np.arange(m), :, np.arange(m), :]
+    m2 = np.einsum("ni,ni->n", d, np.linalg.solve(blocks, d[:, :, None])[:, :, 0])
+    return float(np.sqrt(np.mean(m2)))
+
+
+def _beyond_window(cov: FloatArray, window: tuple[float, float], k: float) -> bool:
+    """Whether a prior of covariance ``cov`` (3, 3; m, rad) reaches beyond the search's
+    largest half-width ``window`` ``(m, rad)`` at ``k`` sigma in x, y or yaw."""
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return bool(k * max(sd[0], sd[1]) > window[0] or k * sd[2] > window[1])
 
 
 def _compose_many(base: FloatArray, rel: FloatArray) -> FloatArray:
@@ -1621,6 +1690,7 @@ __all__: Sequence[str] = (
     "StopPoseGraph",
     "StopScan",
     "images_seen_from",
+    "pose_shift",
     "predicted_images",
     "refine_turns",
     "relative_covariance",

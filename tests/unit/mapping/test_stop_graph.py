@@ -10,12 +10,14 @@ import pytest
 from fusion_center.mapping.stop_graph import (
     GraphEdge,
     ReflectorRegistration,
+    Registration,
     ScanLog,
     StopGraphConfig,
     StopGraphPathEstimator,
     StopPoseGraph,
     StopScan,
     images_seen_from,
+    pose_shift,
     predicted_images,
     refine_turns,
     relative_pose,
@@ -316,6 +318,10 @@ def test_bad_input_gives_one_line_value_errors() -> None:
         StopPoseGraph(0)
     with pytest.raises(ValueError, match=r"^StopGraphConfig.closure_link_scatter must be > 0"):
         StopGraphConfig(closure_link_scatter=float("nan"))
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.bundle_max_shift must be > 0"):
+        StopGraphConfig(bundle_max_shift=0.0)
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.loop_defer must be numbers > 0"):
+        StopGraphConfig(loop_defer=(1.0, -1.0))
     for msg in (
         str(_catch(lambda: StopGraphConfig(min_matched=0))),
         str(_catch(lambda: StopGraphConfig(min_explained=2.0))),
@@ -635,3 +641,96 @@ def test_refine_turns_does_not_hide_a_nan() -> None:
     odo = [(pb, np.eye(3) * 1e-4)]
     with pytest.raises(ValueError, match="finite"):
         refine_turns([a, b], [], np.zeros(0), np.vstack([np.zeros(3), pb]), odo, StopGraphConfig())
+
+
+def test_pose_shift_is_the_rms_mahalanobis_distance_of_the_stops() -> None:
+    """Stop 1 moved by 2 sigma in x, stop 2 by 1 sigma in yaw (across +-pi), stop 0 (the
+    gauge) ignored: RMS of 2 and 1."""
+    before = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, np.pi - 0.01]])
+    sd = np.array([0.1, 0.2, 0.05, 0.3, 0.3, 0.02])
+    cov = np.diag(sd**2)
+    cov[0, 1] = cov[1, 0] = 0.5 * sd[0] * sd[1]  # a correlation within a stop's block
+    cov[0, 3] = cov[3, 0] = 0.9 * sd[0] * sd[3]  # and across stops: not used
+    after = before.copy()
+    after[0] += [5.0, 5.0, 1.0]
+    # 2 sigma along x of a correlated block: d' C^-1 d = 4 / (1 - 0.5^2) for d = (0.2, 0, 0)
+    after[1, 0] += 0.2
+    after[2, 2] = -np.pi + 0.01  # 0.02 rad = 1 sigma, wrapped
+    m2 = np.array([4.0 / (1 - 0.25), 1.0])
+    assert pose_shift(before, after, cov) == pytest.approx(np.sqrt(m2.mean()))
+    assert pose_shift(before[:1], after[:1], np.zeros((0, 0))) == 0.0
+
+
+def test_bundle_max_shift_drops_a_bundle_adjustment_that_moves_the_graph(
+    run: tuple[ScanLog, np.ndarray],
+) -> None:
+    """The bundle adjustment's shift is reported; a guard below it keeps the refinement's
+    poses (the result of ``bundle_adjust=False``), one above it the bundle adjustment's."""
+    log, _ = run
+    kept = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(bundle_max_shift=np.inf)).estimate(log)
+    assert kept.bundle_shift is not None and 0.0 < kept.bundle_shift < np.inf
+    # the default guard leaves this clean run's adjustment alone
+    assert kept.bundle_shift < StopGraphConfig().bundle_max_shift
+    assert not kept.bundle_dropped
+    no_ba = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(bundle_adjust=False)).estimate(log)
+    assert no_ba.bundle_shift is None
+    assert not np.allclose(kept.trajectory, no_ba.trajectory)
+    low = StopGraphConfig(bundle_max_shift=0.5 * kept.bundle_shift)
+    dropped = StopGraphPathEstimator(ANTENNAS, low).estimate(log)
+    assert dropped.bundle_dropped
+    assert dropped.bundle_shift == pytest.approx(kept.bundle_shift)
+    np.testing.assert_allclose(dropped.trajectory, no_ba.trajectory)
+    high = StopGraphConfig(bundle_max_shift=2.0 * kept.bundle_shift)
+    np.testing.assert_allclose(
+        StopGraphPathEstimator(ANTENNAS, high).estimate(log).trajectory, kept.trajectory
+    )
+
+
+def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndarray]) -> None:
+    """A registration whose prior reaches beyond its search window at 1 sigma returns a
+    wrong match (0.3 m off; a capped search holds some local match), otherwise the truth.
+    With stops 1-2 and 2-3 joined by odometry alone, every loop prior crosses a drive; the
+    default search takes the wide ones at once and bends the graph by centimetres, the
+    deferred one closes 0-2 first and then finds every other loop within the window."""
+    log, poses = run
+    segs = segment_stops(log.odometry)
+    truth = np.array([poses[s] for s, _ in segs])
+    index = {s: k for k, (s, _) in enumerate(segs)}
+    window = (0.05, np.radians(3.0))
+
+    def solve(defer: tuple[float, ...]) -> tuple[np.ndarray, list[float]]:
+        cfg = StopGraphConfig(
+            refine_turns=False,
+            bundle_adjust=False,
+            loop_window=(0.005, np.radians(0.1)),
+            window=window,
+            loop_defer=defer,
+        )
+        est = StopGraphPathEstimator(ANTENNAS, cfg)
+        widths: list[float] = []
+
+        def fake(a: StopScan, b: StopScan, prior: np.ndarray, cov: np.ndarray) -> Registration:
+            i, j = index[a.start], index[b.start]
+            z = relative_pose(truth[i], truth[j])
+            sd = np.sqrt(np.diag(cov))
+            if j == i + 1 and i in (1, 2):
+                return Registration(
+                    pose=prior, cov=cov, explained=0.0, matched=0, accepted=False, reason="x"
+                )
+            if j > i + 1:
+                widths.append(float(max(sd[0] / window[0], sd[1] / window[0], sd[2] / window[1])))
+            if max(sd[:2]) > window[0] or sd[2] > window[1]:
+                z = z + np.array([0.3, 0.0, 0.0])
+            tight = np.diag([1e-4, 1e-4, 1e-6])
+            return Registration(pose=z, cov=tight, explained=1.0, matched=5, accepted=True)
+
+        est.registration.register_both = fake  # type: ignore[method-assign]
+        res = est.estimate(log)
+        err = np.hypot(*(res.stop_poses[:, :2] - _in_first_frame(truth)[:, :2]).T)
+        return err, widths
+
+    err0, widths0 = solve(())
+    err1, widths1 = solve((1.0,))
+    assert max(widths0) > 1.0 and err0.max() > 0.05
+    assert len(widths1) == len(widths0)  # the same candidates, tried later
+    assert max(widths1) <= 1.0 and err1.max() < 0.01

@@ -29,18 +29,24 @@ def _echoes(seed: int = 1):
     return (room, *_stop_echoes(room, STOPS, seed))
 
 
-def _stop_echoes(room, stops, seed: int):
-    """Poses of a stop-and-turn path through ``stops`` (TURN acquisitions, 6-degree steps),
-    the room's echo pairs there and their Kalman track ids (reset at every drive)."""
-    poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
-    rng = np.random.default_rng(seed)
-    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+def _track_ids(pairs) -> list:
+    """Kalman track ids of ``pairs`` as the mapper groups them (reset at every drive)."""
     grouper = KalmanEchoGrouper()
     ids = []
     for i, z in enumerate(pairs):
         if i % TURN == 0:
             grouper.reset()
         ids.append(grouper.step(z))
+    return ids
+
+
+def _stop_echoes(room, stops, seed: int):
+    """Poses of a stop-and-turn path through ``stops`` (TURN acquisitions, 6-degree steps),
+    the room's echo pairs there and their Kalman track ids (reset at every drive)."""
+    poses = stop_and_turn_poses(stops, TURN, np.radians(6.0))
+    rng = np.random.default_rng(seed)
+    pairs = [echo_pairs(room, p, ANTENNAS, rng) for p in poses]
+    ids = _track_ids(pairs)
     return poses, pairs, ids
 
 
@@ -409,12 +415,7 @@ def _with_ghost(seed: int, looks: int):
         for i in seen[:looks]:
             z = np.vstack([pairs[i], echo_pairs(_single(corner=ghost), poses[i], ANTENNAS, rng)])
             pairs[i] = z[np.argsort(z.sum(1))]
-    grouper = KalmanEchoGrouper()
-    ids = []
-    for i, z in enumerate(pairs):
-        if i % TURN == 0:
-            grouper.reset()
-        ids.append(grouper.step(z))
+    ids = _track_ids(pairs)
     return poses, pairs, ids, np.array(true), np.array(ghost)
 
 
@@ -442,12 +443,7 @@ def test_of_two_corners_close_together_the_weaker_is_left_out() -> None:
         extra = echo_pairs(_single(corner=near), poses[i], ANTENNAS, rng)
         z = np.vstack([pairs[i], extra])
         pairs[i] = z[np.argsort(z.sum(1))]
-    grouper = KalmanEchoGrouper()
-    ids = []
-    for i, z in enumerate(pairs):
-        if i % TURN == 0:
-            grouper.reset()
-        ids.append(grouper.step(z))
+    ids = _track_ids(pairs)
     cfg = FixedPathConfig(corner_rate=0.0, corner_separation=0.0)
     both = map_fixed_path(pairs, ids, poses, ANTENNAS, cfg).map.corners
     assert np.linalg.norm(both - near, axis=1).min() < 0.05, both
@@ -502,12 +498,7 @@ def _heard_by(
         ]
         for i, z in looks[: few[1]]:
             pairs[i] = z
-    grouper = KalmanEchoGrouper()
-    ids = []
-    for i, z in enumerate(pairs):
-        if i % TURN == 0:
-            grouper.reset()
-        ids.append(grouper.step(z))
+    ids = _track_ids(pairs)
     cfg = config or FixedPathConfig(min_group_pairs=1)
     res = map_fixed_path(pairs, ids, poses, ANTENNAS, cfg)
     k = int(np.argmin(np.linalg.norm(res.states - true, axis=1)))

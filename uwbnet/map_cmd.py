@@ -115,6 +115,8 @@ class MapStats:
     wall_gap: float | None = None
     bundle_adjust: bool | None = None
     bundle_unconverged: int | None = None
+    bundle_shift: float | None = None
+    bundle_dropped: bool | None = None
     eval: dict[str, Any] | None = None
     eval_filter: dict[str, Any] | None = None
 
@@ -284,6 +286,9 @@ def _map_by_stops(
     stats.registrations = res.n_registered
     stats.stops_registered = len(joined.intersection(turns))
     stats.bundle_unconverged = res.bundle_unconverged
+    if res.bundle_shift is not None and np.isfinite(res.bundle_shift):
+        stats.bundle_shift = round(float(res.bundle_shift), 3)
+    stats.bundle_dropped = res.bundle_dropped if config.bundle_adjust else None
     if res.bundle_unconverged:
         log.warning(
             "%s: %d solve(s) of the bundle adjustment stopped before converging",
@@ -485,6 +490,8 @@ def map_recording(
             wall_gap=stats.wall_gap,
             bundle_adjust=stats.bundle_adjust,
             bundle_unconverged=stats.bundle_unconverged,
+            bundle_shift=stats.bundle_shift,
+            bundle_dropped=stats.bundle_dropped,
         )
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)

@@ -299,6 +299,10 @@ def test_map_bundle_adjust_reaches_the_stop_graph(turning_recording: Path, tmp_p
     assert isinstance(on["bundle_unconverged"], int) and on["bundle_unconverged"] >= 0
     assert stats["--bundle-adjust"]["bundle_unconverged"] == on["bundle_unconverged"]
     assert off["bundle_unconverged"] is None
+    # how far it moved the stops (RMS sigma) and whether the guard dropped it
+    assert on["bundle_shift"] >= 0 and isinstance(on["bundle_dropped"], bool)
+    assert stats["--bundle-adjust"]["bundle_shift"] == on["bundle_shift"]
+    assert off["bundle_shift"] is None and off["bundle_dropped"] is None
     default = StopGraphConfig().bundle_adjust
     assert docs[""]["bundle_adjust"] is default
     assert docs[""]["trajectory"] == (on if default else off)["trajectory"]

@@ -289,7 +289,7 @@ def _map_by_stops(
     if res.bundle_shift is not None and np.isfinite(res.bundle_shift):
         stats.bundle_shift = round(float(res.bundle_shift), 3)
     stats.bundle_dropped = res.bundle_dropped if config.bundle_adjust else None
-    if res.bundle_unconverged:
+    if res.bundle_unconverged and not res.bundle_dropped:
         log.warning(
             "%s: %d solve(s) of the bundle adjustment stopped before converging",
             path,
@@ -297,7 +297,7 @@ def _map_by_stops(
         )
     if res.bundle_dropped:
         log.warning(
-            "%s: the bundle adjustment moved the stops by %.1f sigma (RMS); kept the graph's",
+            "%s: the bundle adjustment moved the stops by %.1f sigma (RMS); kept the refined poses",
             path,
             res.bundle_shift,
         )
@@ -474,6 +474,9 @@ def map_recording(
         "walls": np.round(the_map.walls, 4).tolist(),
         "corners": np.round(the_map.corners, 4).tolist(),
         "points": np.round(the_map.points, 4).tolist(),
+        # indices into walls of the corridor end walls heard from one stop (an inference:
+        # features.corridor_end_walls), so a later close_outline can extend to them again
+        "end_walls": np.asarray(the_map.end_walls, int).tolist(),
         "trajectory": [[round(v, 5) for v in row] for row in traj],
         "robot": stats.robot,
         "frame": "first pose of the robot",

@@ -1606,7 +1606,7 @@ class StopGraphPathEstimator:
         if cfg.bundle_adjust and n > 1:
             ba_poses, ba_coef, unconverged = self._bundle_adjust(log, stops, poses, coef, odo)
             shift = pose_shift(poses, ba_poses, graph.covariance(poses, wt))
-            dropped = shift > cfg.bundle_max_shift
+            dropped = not shift <= cfg.bundle_max_shift  # a NaN shift is dropped too
             if not dropped:
                 poses, coef = ba_poses, ba_coef
         modes = coef.shape[1]

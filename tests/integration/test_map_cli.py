@@ -46,6 +46,8 @@ def test_map_writes_walls_corners_points_and_trajectory(
     assert "no stop graph: turning steps of 15 degrees" in proc.stderr
     assert stats["stops"] == 0 and stats["wall_gap"] is None
     assert all(len(w) == 4 for w in doc["walls"]) and len(doc["walls"]) >= 2
+    # the walls inferred as corridor ends from one stop, by index
+    assert all(0 <= k < len(doc["walls"]) for k in doc["end_walls"])
     assert png.stat().st_size > 1000
     # The trajectory starts at the origin of the first-pose frame and stays near the truth.
     assert doc["trajectory"][0][1:] == [0.0, 0.0, 0.0]

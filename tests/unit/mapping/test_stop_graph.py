@@ -686,6 +686,27 @@ def test_bundle_max_shift_drops_a_bundle_adjustment_that_moves_the_graph(
     )
 
 
+def test_a_bundle_adjustment_that_returns_nan_poses_is_dropped(
+    run: tuple[ScanLog, np.ndarray],
+) -> None:
+    """A non-finite adjustment has a NaN shift, which no limit admits: the refined poses
+    stand (NaN > limit is False, so a plain comparison kept NaN poses)."""
+    log, _ = run
+    no_ba = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(bundle_adjust=False)).estimate(log)
+    est = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(bundle_max_shift=np.inf))
+    real = est._bundle_adjust
+
+    def broken(*args: object) -> tuple[np.ndarray, np.ndarray, int]:
+        poses, coef, unconverged = real(*args)
+        return np.full_like(poses, np.nan), coef, unconverged
+
+    est._bundle_adjust = broken  # type: ignore[method-assign]
+    res = est.estimate(log)
+    assert res.bundle_dropped and np.isnan(res.bundle_shift)
+    assert np.isfinite(res.trajectory).all()
+    np.testing.assert_allclose(res.trajectory, no_ba.trajectory)
+
+
 def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndarray]) -> None:
     """A registration whose prior reaches beyond its search window at 1 sigma returns a
     wrong match (0.3 m off; a capped search holds some local match), otherwise the truth.

@@ -306,13 +306,38 @@ def test_the_joint_association_needs_a_common_offset() -> None:
     err = np.array([[0.4, 0.41], [0.39, 0.4], [0.42, 0.4], [0.3, 0.3], [0.55, 0.55], [0, 0]])
     out = smoother._associate_by_stop(lm, stop, pair, landmark, err)
     assert out.tolist() == [0, 0, 0, -1, -1, 0]
-    # a different direction of arrival (r1 - r2 off by 0.5 m) is no common range offset
-    err2 = err.copy()
-    err2[:3] = [[0.15, 0.65], [0.16, 0.64], [0.14, 0.66]]
-    assert smoother._associate_by_stop(lm, stop, pair, landmark, err2).tolist() == lm.tolist()
     # two pairs are too few (stop_min_pairs = 3)
     two = smoother._associate_by_stop(lm, stop, pair[1:], landmark[1:], err[1:])
     assert two.tolist() == lm.tolist()
+
+
+def test_the_joint_association_needs_one_direction_of_arrival() -> None:
+    smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
+    # one stop: four pairs 0.4 m off at both receivers, and three whose mean residual is the
+    # same 0.4 m, each receiver within gate (0.25 m) of it, but whose receivers differ by
+    # 0.3-0.45 m (another direction of arrival: another reflector's echo)
+    err = np.array(
+        [
+            [0.4, 0.41],
+            [0.39, 0.4],
+            [0.42, 0.4],
+            [0.41, 0.39],
+            [0.55, 0.25],
+            [0.6, 0.2],
+            [0.62, 0.18],
+        ]
+    )
+    assert np.allclose(err.mean(1), 0.4, atol=0.01)
+    lm = np.full(7, -1)
+    stop = np.zeros(7, np.int64)
+    pair = np.arange(7)
+    out = smoother._associate_by_stop(lm, stop, pair, np.zeros(7, np.int64), err)
+    assert out.tolist() == [0, 0, 0, 0, -1, -1, -1]
+    # the rule follows range_sigma: at a 0.05 m noise a 0.3 m difference is 4 sigma off
+    loose = LeastSquaresPathMapSmoother(
+        ANTENNAS, SmootherConfig(stop_gate=0.6, range_sigma=0.12)
+    )._associate_by_stop(lm, stop, pair, np.zeros(7, np.int64), err)
+    assert loose.tolist() == [0] * 7
 
 
 def test_a_landmark_heard_from_one_stop_has_that_stop_as_its_observer() -> None:

@@ -277,9 +277,11 @@ def corridor_end_walls(
       (no mapped wall within ``tolerance`` of ``f``, which also skips an end already mapped).
 
     The end wall spans the gap between the two side lines; of several candidates in one
-    corridor and direction the nearest stands (a longer echo down a corridor is a multipath
-    image beyond its end). Beyond the chapter (a geometric rule on the map, as
-    :func:`build_map`'s classification of corners; docs/mapping.md "Corridor end walls").
+    corridor and direction the nearest along the corridor stands (the smallest ``f . t``,
+    ``t`` the side wall's tangent pointing that way, whichever stop heard it: a longer echo
+    down a corridor is a multipath image beyond its end). Beyond the chapter (a geometric
+    rule on the map, as :func:`build_map`'s classification of corners; docs/mapping.md
+    "Corridor end walls").
 
     Parameters
     ----------
@@ -353,10 +355,13 @@ def corridor_end_walls(
         reach_past = np.sum((np.vstack([p[[i, j]], q[[i, j]]]) - f[k]) * b, 1)
         if np.any(reach_past > tolerance):
             continue
-        # one end per corridor and direction (the direction against a fixed side's tangent)
-        key = (min(i, j), max(i, j), int(np.sign(float(u[min(i, j)] @ b))))
-        if key not in best or dist < best[key][0]:
-            best[key] = (dist, np.r_[ends[0], ends[1]])
+        # one end per corridor and direction (the direction against a fixed side's tangent):
+        # the nearest along that direction, wherever the stop that heard it stood
+        sign = int(np.sign(float(u[min(i, j)] @ b)))
+        key = (min(i, j), max(i, j), sign)
+        along_k = sign * float(u[min(i, j)] @ f[k])
+        if key not in best or along_k < best[key][0]:
+            best[key] = (along_k, np.r_[ends[0], ends[1]])
     return np.array([v[1] for v in best.values()], float).reshape(-1, 4)
 
 

@@ -309,6 +309,16 @@ def test_of_two_landmarks_down_one_corridor_the_nearest_is_the_end() -> None:
     # the other way down the corridor is another end
     ends = corridor_end_walls(_SIDES, [[9.0, 1.2], [-1.0, 1.2]], [[3.0, 1.2], [1.0, 1.2]])
     assert len(ends) == 2
+    # nearest along the corridor, not to the stop that heard it: the end at x = 8 heard from
+    # x = 1 (7 m) stands, the image at x = 12 heard from x = 6 (6 m) does not
+    for order in ([0, 1], [1, 0]):
+        refl = np.array([[8.0, 1.2], [12.0, 1.2]])[order]
+        obs = np.array([[1.0, 1.2], [6.0, 1.2]])[order]
+        ends = corridor_end_walls(_SIDES, refl, obs)
+        np.testing.assert_allclose(_sorted_ends(ends)[:, 0], [8.0, 8.0], atol=1e-9)
+    # and the other way: the end at x = -3 (from x = 3.5) before the image at x = -6 (from -1)
+    ends = corridor_end_walls(_SIDES, [[-6.0, 1.2], [-3.0, 1.2]], [[-1.0, 1.2], [3.5, 1.2]])
+    np.testing.assert_allclose(_sorted_ends(ends)[:, 0], [-3.0, -3.0], atol=1e-9)
 
 
 def test_no_end_wall_off_the_corridor_or_where_a_wall_is_seen() -> None:

@@ -577,7 +577,8 @@ def close_outline(
     Raises
     ------
     ValueError
-        A parameter out of range or a path or walls not of shape (k, 2) / (w, 4).
+        A parameter out of range, a path or walls not of shape (k, 2) / (w, 4), or
+        ``end_walls`` not integer indices of the walls.
     """
     for name, value, ok_ in (
         ("reach", reach, reach > 0.0),
@@ -604,6 +605,15 @@ def close_outline(
         raise ValueError(f"close_outline: walls must be (w, 4) segments, got {walls.shape}")
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise ValueError(f"close_outline: path must be (k, 2) positions, got {xy.shape}")
+    ends_idx = np.asarray(the_map.end_walls).reshape(-1)
+    if ends_idx.size and (
+        not np.issubdtype(ends_idx.dtype, np.integer)
+        or ends_idx.min() < 0
+        or ends_idx.max() >= len(walls)
+    ):
+        raise ValueError(
+            f"close_outline: end_walls must index the {len(walls)} walls, got {ends_idx.tolist()}"
+        )
     xy = xy[np.isfinite(xy).all(1)]
     if len(walls) < 2 or len(xy) == 0:
         return the_map
@@ -632,8 +642,7 @@ def close_outline(
     # a confirmed corridor end wall (heard straight down between its side walls) closes
     # with them farther: nothing else could have been heard of the side walls past the stop
     is_end = np.zeros(len(walls), bool)
-    ends_idx = np.asarray(the_map.end_walls, np.intp).reshape(-1)
-    is_end[ends_idx[(ends_idx >= 0) & (ends_idx < len(walls))]] = True
+    is_end[ends_idx] = True
     limit = np.where(concave & (is_end[:, None] | is_end[None, :]), end_reach, limit)
     trim = np.where(convex, convex_trim, overshoot)
     ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= limit) & (beyond >= -trim)

@@ -132,8 +132,9 @@ class SmootherConfig:
             raise ValueError(f"kind_switch_ratio must be in (0, 1], got {self.kind_switch_ratio}")
         if self.merge_dist < 0.0 or self.merge_point_dist < 0.0 or self.merge_angle < 0.0:
             raise ValueError("merge_dist, merge_point_dist and merge_angle must be >= 0")
-        if not self.stop_gate >= 0.0:
-            raise ValueError(f"stop_gate must be >= 0, got {self.stop_gate}")
+        if not 0.0 <= self.stop_gate < np.inf:
+            # inf would make every in-view pair a candidate of every landmark
+            raise ValueError(f"stop_gate must be finite and >= 0, got {self.stop_gate}")
         k = self.stop_min_pairs
         if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
             raise ValueError(f"stop_min_pairs must be an integer >= 1, got {k!r}")

@@ -361,3 +361,7 @@ def test_side_walls_close_with_a_confirmed_end_wall_from_farther() -> None:
     np.testing.assert_array_equal(short.walls[:2], np.array(_SIDES, float))
     with pytest.raises(ValueError, match=r"end_reach .*got 0\.0"):
         close_outline(m, np.array(path), end_reach=0.0)
+    # end_walls index the walls: out of range, negative or not integers is an error
+    for bad in ([3], [-1], [2.0]):
+        with pytest.raises(ValueError, match=r"end_walls must index the 3 walls"):
+            close_outline(SlamMap(walls=m.walls, end_walls=np.array(bad)), np.array(path))

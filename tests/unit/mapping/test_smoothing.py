@@ -242,6 +242,7 @@ def test_a_merged_group_is_not_absorbed_again_by_a_weaker_landmark() -> None:
         {"merge_dist": -0.1},
         {"stop_gate": -0.1},
         {"stop_gate": float("nan")},
+        {"stop_gate": float("inf")},
         {"stop_min_pairs": 0},
         {"stop_min_pairs": 2.5},
     ],

@@ -513,8 +513,12 @@ def close_outline(
     the other wall across, where no wall stands: it is the echo of the corner's edge taken
     for the wall (corridor_L_sparse: the second leg's inner wall mapped 0.6-1.2 m into the
     first leg from the stop facing the edge), so it is trimmed back to ``X`` up to
-    ``convex_trim``. A concave corner's wall that runs past ``X`` may be a room wall going
-    on past an object's face, so its trim stays at ``overshoot``.
+    ``convex_trim``, keeping at least ``2 overshoot`` of it. A concave corner's wall that
+    runs past ``X`` may be a room wall going on past an object's face, so its trim stays at
+    ``overshoot``. A trim (``X`` inside a wall, never more than half of it from the nearer
+    end) is checked by the geometry alone: the angle, the approach sides, these bounds and
+    the line of sight from the poses to ``X`` (the last point below); the path, clearance
+    and witness tests look at extensions only, and a trimmed wall has none.
 
     Each wall end takes at most one closure, the shortest extensions first (those with a
     mapped corner within ``confirm`` of ``X``, the double reflection that confirms it,
@@ -541,7 +545,7 @@ def close_outline(
         Largest extension of a wall beyond its mapped end, m (default 2.5).
     overshoot : float
         Largest trim of a wall whose end lies past ``X``, m (default 0.3); walls no longer
-        than twice this are not trimmed.
+        than twice this are not trimmed, and a convex trim leaves at least twice this.
     min_angle : float
         Smallest angle between the two lines, rad (default 75 degrees).
     confirm : float
@@ -561,7 +565,8 @@ def close_outline(
         Largest extension to a convex corner, m (default 3.0: the L's inner corner lies 2.4-
         2.5 m beyond the first leg's mapped inner wall on corridor_L_sparse).
     convex_trim : float
-        Largest trim of a wall running past a convex corner, m (default 2.0).
+        Largest trim of a wall running past a convex corner, m (default 2.0; at most half
+        the wall, and ``2 overshoot`` of it stays).
     end_reach : float
         Largest extension of a side wall to a corridor end wall (``the_map.end_walls``,
         :func:`corridor_end_walls`) at a concave corner, m (default 6.0: the end wall is
@@ -646,9 +651,12 @@ def close_outline(
     limit = np.where(concave & (is_end[:, None] | is_end[None, :]), end_reach, limit)
     trim = np.where(convex, convex_trim, overshoot)
     ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= limit) & (beyond >= -trim)
-    # a trim only on walls longer than two trims: two would leave a few centimetres of wall
-    ok &= (beyond >= 0.0) | (length[:, None] > -2.0 * np.minimum(beyond, 0.0))
+    # a trim only on walls longer than two overshoots (X inside a wall is at most half its
+    # length from the nearer end, so a trim never takes more than half), and a convex trim,
+    # up to convex_trim, leaves at least that much of the wall: the echoes heard of the wall
+    # are more than the edge's where half a short wall would go
     ok &= (beyond >= 0.0) | (length[:, None] > 2.0 * overshoot)
+    ok &= (beyond >= 0.0) | ~convex | (length[:, None] + beyond >= 2.0 * overshoot)
     ok &= ok.T
     ok &= (concave | convex) & np.triu(np.ones_like(ok), 1)
     ok &= (np.abs(nf).sum(1) > 0)[:, None] & (np.abs(nf).sum(1) > 0)[None, :]

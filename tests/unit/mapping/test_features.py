@@ -100,6 +100,15 @@ def test_a_wall_running_past_a_convex_corner_is_trimmed_to_it() -> None:
     # with the concave corners' reach and trim it stays open
     m, c = _closed(walls, path, convex_reach=2.5, convex_trim=0.3)
     np.testing.assert_array_equal(c.walls, m.walls)
+    # a trim leaves at least 2 overshoot (0.6 m) of the wall: x = 5 mapped y 1.55..2.5 runs
+    # 0.45 m past the corner, which would leave 0.5 m; mapped to y = 3.2 it leaves 1.2 m
+    m, c = _closed([walls[0], [5, 2.5, 5, 1.55]], path)
+    np.testing.assert_array_equal(c.walls, m.walls)
+    _, c = _closed([walls[0], [5, 3.2, 5, 1.55]], path)
+    np.testing.assert_allclose(c.walls, [[0, 2, 5, 2], [5, 3.2, 5, 2]], atol=1e-12)
+    # (at overshoot 0.2 the 0.5 m left are enough)
+    _, c = _closed([walls[0], [5, 2.5, 5, 1.55]], path, overshoot=0.2)
+    np.testing.assert_allclose(c.walls, [[0, 2, 5, 2], [5, 2.5, 5, 2]], atol=1e-12)
     # a concave corner's wall running 0.8 m past it is not cut (a room wall going on past a
     # face; the convex trim does not apply)
     m, c = _closed([[-0.8, 0, 4, 0], [0, 3, 0, 0.5]], [[2, 1], [1, 2]])

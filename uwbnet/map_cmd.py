@@ -522,7 +522,8 @@ def map_recording(
 
 def _association(method: str, first: list[Ir]) -> str:
     """The filter's data association: ``method``, or for ``auto`` state space when the
-    median turning step (``|odom dyaw|`` of the steps that do not drive, > 0.1 m) of the
+    median turning step (``|odom dyaw|`` of the steps that do not drive, > 0.1 m, and turn;
+    :func:`turning_step`) of the
     ``first`` acquisitions reaches :data:`AUTO_STATE_STEP`, else measurement space."""
     if method != "auto":
         return method
@@ -564,11 +565,12 @@ def stop_wall_gap(stops: np.ndarray) -> float:
 
 def turning_step(odometry: np.ndarray, drive: float = 0.1) -> float | None:
     """Median turning step of a robot, rad: ``|dyaw|`` of the odometry increments
-    ``(dx, dy, dyaw)`` (shape (n, 3)) that do not drive (moved at most ``drive``, m); None
-    when there are none."""
-    odo = np.asarray(odometry, float).reshape(-1, 3)
-    turn = np.abs(odo[np.hypot(odo[:, 0], odo[:, 1]) <= drive, 2])
-    return float(np.median(turn)) if turn.size else None
+    ``(dx, dy, dyaw)`` (shape (n, 3)) that do not drive (moved at most ``drive``, m), dwells
+    (no turn) left out; None when none turns
+    (:func:`fusion_center.mapping.pipeline.turning_step`)."""
+    from fusion_center.mapping.pipeline import turning_step as step
+
+    return step(odometry, drive)
 
 
 def compose(pose: np.ndarray, increment: np.ndarray) -> np.ndarray:

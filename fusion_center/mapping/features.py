@@ -277,9 +277,11 @@ def corridor_end_walls(
       (no mapped wall within ``tolerance`` of ``f``, which also skips an end already mapped).
 
     The end wall spans the gap between the two side lines; of several candidates in one
-    corridor and direction the nearest stands (a longer echo down a corridor is a multipath
-    image beyond its end). Beyond the chapter (a geometric rule on the map, as
-    :func:`build_map`'s classification of corners; docs/mapping.md "Corridor end walls").
+    corridor and direction the nearest along the corridor stands (the smallest ``f . t``,
+    ``t`` the side wall's tangent pointing that way, whichever stop heard it: a longer echo
+    down a corridor is a multipath image beyond its end). Beyond the chapter (a geometric
+    rule on the map, as :func:`build_map`'s classification of corners; docs/mapping.md
+    "Corridor end walls").
 
     Parameters
     ----------
@@ -353,10 +355,13 @@ def corridor_end_walls(
         reach_past = np.sum((np.vstack([p[[i, j]], q[[i, j]]]) - f[k]) * b, 1)
         if np.any(reach_past > tolerance):
             continue
-        # one end per corridor and direction (the direction against a fixed side's tangent)
-        key = (min(i, j), max(i, j), int(np.sign(float(u[min(i, j)] @ b))))
-        if key not in best or dist < best[key][0]:
-            best[key] = (dist, np.r_[ends[0], ends[1]])
+        # one end per corridor and direction (the direction against a fixed side's tangent):
+        # the nearest along that direction, wherever the stop that heard it stood
+        sign = int(np.sign(float(u[min(i, j)] @ b)))
+        key = (min(i, j), max(i, j), sign)
+        along_k = sign * float(u[min(i, j)] @ f[k])
+        if key not in best or along_k < best[key][0]:
+            best[key] = (along_k, np.r_[ends[0], ends[1]])
     return np.array([v[1] for v in best.values()], float).reshape(-1, 4)
 
 
@@ -508,8 +513,12 @@ def close_outline(
     the other wall across, where no wall stands: it is the echo of the corner's edge taken
     for the wall (corridor_L_sparse: the second leg's inner wall mapped 0.6-1.2 m into the
     first leg from the stop facing the edge), so it is trimmed back to ``X`` up to
-    ``convex_trim``. A concave corner's wall that runs past ``X`` may be a room wall going
-    on past an object's face, so its trim stays at ``overshoot``.
+    ``convex_trim``, keeping at least ``2 overshoot`` of it. A concave corner's wall that
+    runs past ``X`` may be a room wall going on past an object's face, so its trim stays at
+    ``overshoot``. A trim (``X`` inside a wall, never more than half of it from the nearer
+    end) is checked by the geometry alone: the angle, the approach sides, these bounds and
+    the line of sight from the poses to ``X`` (the last point below); the path, clearance
+    and witness tests look at extensions only, and a trimmed wall has none.
 
     Each wall end takes at most one closure, the shortest extensions first (those with a
     mapped corner within ``confirm`` of ``X``, the double reflection that confirms it,
@@ -536,7 +545,7 @@ def close_outline(
         Largest extension of a wall beyond its mapped end, m (default 2.5).
     overshoot : float
         Largest trim of a wall whose end lies past ``X``, m (default 0.3); walls no longer
-        than twice this are not trimmed.
+        than twice this are not trimmed, and a convex trim leaves at least twice this.
     min_angle : float
         Smallest angle between the two lines, rad (default 75 degrees).
     confirm : float
@@ -556,7 +565,8 @@ def close_outline(
         Largest extension to a convex corner, m (default 3.0: the L's inner corner lies 2.4-
         2.5 m beyond the first leg's mapped inner wall on corridor_L_sparse).
     convex_trim : float
-        Largest trim of a wall running past a convex corner, m (default 2.0).
+        Largest trim of a wall running past a convex corner, m (default 2.0; at most half
+        the wall, and ``2 overshoot`` of it stays).
     end_reach : float
         Largest extension of a side wall to a corridor end wall (``the_map.end_walls``,
         :func:`corridor_end_walls`) at a concave corner, m (default 6.0: the end wall is
@@ -572,7 +582,8 @@ def close_outline(
     Raises
     ------
     ValueError
-        A parameter out of range or a path or walls not of shape (k, 2) / (w, 4).
+        A parameter out of range, a path or walls not of shape (k, 2) / (w, 4), or
+        ``end_walls`` not integer indices of the walls.
     """
     for name, value, ok_ in (
         ("reach", reach, reach > 0.0),
@@ -599,6 +610,15 @@ def close_outline(
         raise ValueError(f"close_outline: walls must be (w, 4) segments, got {walls.shape}")
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise ValueError(f"close_outline: path must be (k, 2) positions, got {xy.shape}")
+    ends_idx = np.asarray(the_map.end_walls).reshape(-1)
+    if ends_idx.size and (
+        not np.issubdtype(ends_idx.dtype, np.integer)
+        or ends_idx.min() < 0
+        or ends_idx.max() >= len(walls)
+    ):
+        raise ValueError(
+            f"close_outline: end_walls must index the {len(walls)} walls, got {ends_idx.tolist()}"
+        )
     xy = xy[np.isfinite(xy).all(1)]
     if len(walls) < 2 or len(xy) == 0:
         return the_map
@@ -627,14 +647,16 @@ def close_outline(
     # a confirmed corridor end wall (heard straight down between its side walls) closes
     # with them farther: nothing else could have been heard of the side walls past the stop
     is_end = np.zeros(len(walls), bool)
-    ends_idx = np.asarray(the_map.end_walls, np.intp).reshape(-1)
-    is_end[ends_idx[(ends_idx >= 0) & (ends_idx < len(walls))]] = True
+    is_end[ends_idx] = True
     limit = np.where(concave & (is_end[:, None] | is_end[None, :]), end_reach, limit)
     trim = np.where(convex, convex_trim, overshoot)
     ok = (np.abs(den) >= np.sin(min_angle)) & (beyond <= limit) & (beyond >= -trim)
-    # a trim only on walls longer than two trims: two would leave a few centimetres of wall
-    ok &= (beyond >= 0.0) | (length[:, None] > -2.0 * np.minimum(beyond, 0.0))
+    # a trim only on walls longer than two overshoots (X inside a wall is at most half its
+    # length from the nearer end, so a trim never takes more than half), and a convex trim,
+    # up to convex_trim, leaves at least that much of the wall: the echoes heard of the wall
+    # are more than the edge's where half a short wall would go
     ok &= (beyond >= 0.0) | (length[:, None] > 2.0 * overshoot)
+    ok &= (beyond >= 0.0) | ~convex | (length[:, None] + beyond >= 2.0 * overshoot)
     ok &= ok.T
     ok &= (concave | convex) & np.triu(np.ones_like(ok), 1)
     ok &= (np.abs(nf).sum(1) > 0)[:, None] & (np.abs(nf).sum(1) > 0)[None, :]

@@ -170,6 +170,53 @@ class MapperConfig:
             )
 
 
+#: An on-the-spot odometry step turning less than this (rad) is a dwell, another acquisition at
+#: the same heading (a robot standing still reads its odometry's noise: the simulated floor is
+#: 0.1 degree); no recording has one, their turning steps are 2.9-17 degrees.
+DWELL_TURN = np.radians(0.5)
+
+
+def turning_step(
+    odometry: npt.ArrayLike, drive: float = 0.1, *, per_acquisition: bool = False
+) -> float | None:
+    """A stop-and-turn robot's turning step, rad, from its odometry increments.
+
+    Of the steps that do not drive (moved at most ``drive``, m: the turns on the spot), those
+    turning at least :data:`DWELL_TURN` are turning steps and the others dwells (more
+    acquisitions at one heading). The step is the median ``|dyaw|`` of the turning steps: the
+    change of heading between acquisitions, which decides whether echoes can be tracked from
+    one to the next (``uwbnet map``'s automatic association and localiser). With
+    ``per_acquisition`` it is the angle turned per acquisition on the spot instead, that step
+    times the turning steps' share of the steps on the spot: a robot taking 3 acquisitions per
+    15-degree heading hears each wall 3 times per heading, as often as a 5-degree robot
+    (:func:`scaled_min_pairs`). Without dwells the two are the same. A heuristic of this
+    implementation (beyond the chapter).
+
+    Parameters
+    ----------
+    odometry : array_like, shape (n, 3)
+        ``(dx, dy, dyaw)`` of every step, m, m, rad.
+    drive : float
+        m, >= 0.
+    per_acquisition : bool
+        The angle per acquisition (dwells included) rather than the step between headings.
+
+    Returns
+    -------
+    float or None
+        rad; None when no step turns on the spot.
+    """
+    if not drive >= 0.0:
+        raise ValueError(f"drive must be >= 0, got {drive}")
+    odo = np.asarray(odometry, float).reshape(-1, 3)
+    spot = np.abs(odo[np.hypot(odo[:, 0], odo[:, 1]) <= drive, 2])
+    turn = spot[spot >= DWELL_TURN]
+    if turn.size == 0:
+        return None
+    step = float(np.median(turn))
+    return step * turn.size / spot.size if per_acquisition else step
+
+
 def scaled_min_pairs(
     min_pairs: int, odometry: npt.ArrayLike, reference_step: float, drive: float = 0.1
 ) -> int:
@@ -179,29 +226,31 @@ def scaled_min_pairs(
 
     A wall is heard over a fixed span of headings at each stop (the horns' beam around the
     foot of the perpendicular, Fig. 19 of the CoLOR chapter), so the pairs it gives scale with
-    the number of headings in that span: ``min_pairs`` (8) was measured on room_pillar's
-    3-degree steps, where a wall gives 20-25 pairs a stop; at corridor_L_sparse's 15 degrees it
-    gives 4-6, and the second leg's inner wall, seen from two stops with 7 pairs, was left out
-    (beyond the chapter: a support rule of this implementation).
+    the acquisitions in that span: ``min_pairs`` (8) was measured on room_pillar's 3-degree
+    steps, where a wall gives 20-25 pairs a stop; at corridor_L_sparse's 15 degrees it gives
+    4-6, and the second leg's inner wall, seen from two stops with 7 pairs, was left out
+    (beyond the chapter: a support rule of this implementation). ``step`` is the angle turned
+    per acquisition on the spot (:func:`turning_step` with ``per_acquisition``): dwells, more
+    acquisitions at one heading, count as acquisitions.
 
     Parameters
     ----------
     min_pairs : int
-        The count at ``reference_step``.
+        The count at ``reference_step``, >= 1.
     odometry : array_like, shape (n, 3)
         ``(dx, dy, dyaw)`` of every step (m, m, rad); the steps that move at most ``drive``
-        (m) are the turning steps, and their median ``|dyaw|`` is ``step``.
+        (m) are the steps on the spot. A robot that never turns keeps ``min_pairs``.
     reference_step : float
         rad, > 0.
     """
+    k = min_pairs
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
+        raise ValueError(f"min_pairs must be an integer >= 1, got {k!r}")
     if not reference_step > 0.0:
         raise ValueError(f"reference_step must be > 0, got {reference_step}")
-    odo = np.asarray(odometry, float).reshape(-1, 3)
-    turn = np.abs(odo[np.hypot(odo[:, 0], odo[:, 1]) <= drive, 2])
-    turn = turn[turn > 0.0]
-    if turn.size == 0:
+    step = turning_step(odometry, drive, per_acquisition=True)
+    if step is None:
         return int(min_pairs)
-    step = float(np.median(turn))
     return int(min(min_pairs, max(1, np.ceil(min_pairs * reference_step / step - 1e-9))))
 
 

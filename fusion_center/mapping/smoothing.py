@@ -91,8 +91,9 @@ class SmootherConfig:
     stop_gate : float
         Pairs beyond ``gate`` but within this (m) of a landmark's prediction at both
         receivers are associated with it jointly per stop: when at least ``stop_min_pairs``
-        of one stop's pairs lie within ``gate`` of one common range offset and no pair of
-        that stop is associated with the landmark already
+        of one stop's pairs lie within ``gate`` of one common range offset (with one
+        receivers' difference) and no pair of that stop is associated with the landmark
+        already
         (:meth:`LeastSquaresPathMapSmoother._associate_by_stop`; 0 or anything up to
         ``gate``: off, the default; :meth:`EchoSlamMapper.smooth
         <fusion_center.mapping.pipeline.EchoSlamMapper.smooth>` sets 0.6 m with state-space
@@ -131,8 +132,9 @@ class SmootherConfig:
             raise ValueError(f"kind_switch_ratio must be in (0, 1], got {self.kind_switch_ratio}")
         if self.merge_dist < 0.0 or self.merge_point_dist < 0.0 or self.merge_angle < 0.0:
             raise ValueError("merge_dist, merge_point_dist and merge_angle must be >= 0")
-        if not self.stop_gate >= 0.0:
-            raise ValueError(f"stop_gate must be >= 0, got {self.stop_gate}")
+        if not 0.0 <= self.stop_gate < np.inf:
+            # inf would make every in-view pair a candidate of every landmark
+            raise ValueError(f"stop_gate must be finite and >= 0, got {self.stop_gate}")
         k = self.stop_min_pairs
         if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
             raise ValueError(f"stop_min_pairs must be an integer >= 1, got {k!r}")
@@ -464,10 +466,15 @@ class LeastSquaresPathMapSmoother:
         and the smoother never sees them. Here the candidates of a (stop, landmark) group,
         every unassociated pair within ``stop_gate`` of the landmark's prediction at both
         receivers, are tested together: the median of their mean (over the two receivers)
-        range residuals is the common offset, and the pairs within ``gate`` of it at both
-        receivers are associated when at least ``stop_min_pairs`` are and
-        the stop has no pair associated with that landmark already (then the landmark's echo
-        from there is known and the rest are other echoes). A pair that qualifies for several
+        range residuals is the common offset, and a pair is an inlier when both its residuals
+        lie within ``gate`` of it and the difference of its residuals (receiver 1 minus 2)
+        within ``3 sqrt(2) range_sigma`` of the group's median difference: the receivers'
+        difference is ``b sin(angle)`` of the direction of arrival (``b`` the baseline), which
+        another reflector's echo changes while the stop's pose error changes it for all its
+        pairs nearly alike (a 0.3 m difference is about 17 degrees at 1 m baseline). The
+        inliers are associated when at least ``stop_min_pairs`` are and the stop has no pair
+        associated with that landmark already (then the landmark's echo from there is known
+        and the rest are other echoes). A pair that qualifies for several
         landmarks takes the one with the smallest offset. This is the joint compatibility
         of a set of pairings (Neira and Tardos 2001, "Data association in stochastic mapping
         using the joint compatibility test") simplified to one shared offset per stop and
@@ -502,18 +509,23 @@ class LeastSquaresPathMapSmoother:
         pair, landmark, err, key = pair[keep], landmark[keep], err[keep], key[keep]
         if pair.size == 0:
             return lm
-        # the median offset of each (stop, landmark) group: one range offset for both
-        # receivers (a shifted pose or landmark moves both ranges alike; a different
-        # direction of arrival, another reflector's, changes their difference)
         groups, inv = np.unique(key, return_inverse=True)
         count = np.bincount(inv)
-        mean_err = err.mean(1)
-        order = np.lexsort((mean_err, inv))
         start = np.r_[0, np.cumsum(count)[:-1]]
-        offset = 0.5 * (
-            mean_err[order[start + (count - 1) // 2]] + mean_err[order[start + count // 2]]
-        )
+
+        def group_median(v: FloatArray) -> FloatArray:
+            order = np.lexsort((v, inv))
+            return 0.5 * (v[order[start + (count - 1) // 2]] + v[order[start + count // 2]])
+
+        # one range offset for both receivers (a shifted pose or landmark moves both ranges
+        # alike): the group's median mean residual, each receiver within gate of it
+        offset = group_median(err.mean(1))
         inlier = np.all(np.abs(err - offset[inv, None]) <= cfg.gate, 1)
+        # and one direction of arrival: the receivers' difference, within 3 sigma (of a
+        # difference of two ranges: sqrt(2) range_sigma) of the group's median
+        diff = err[:, 0] - err[:, 1]
+        diff_tol = 3.0 * np.sqrt(2.0) * cfg.range_sigma
+        inlier &= np.abs(diff - group_median(diff)[inv]) <= diff_tol
         support = np.bincount(inv, inlier, minlength=groups.size)
         ok = inlier & (support[inv] >= cfg.stop_min_pairs)
         if not np.any(ok):

@@ -100,6 +100,15 @@ def test_a_wall_running_past_a_convex_corner_is_trimmed_to_it() -> None:
     # with the concave corners' reach and trim it stays open
     m, c = _closed(walls, path, convex_reach=2.5, convex_trim=0.3)
     np.testing.assert_array_equal(c.walls, m.walls)
+    # a trim leaves at least 2 overshoot (0.6 m) of the wall: x = 5 mapped y 1.55..2.5 runs
+    # 0.45 m past the corner, which would leave 0.5 m; mapped to y = 3.2 it leaves 1.2 m
+    m, c = _closed([walls[0], [5, 2.5, 5, 1.55]], path)
+    np.testing.assert_array_equal(c.walls, m.walls)
+    _, c = _closed([walls[0], [5, 3.2, 5, 1.55]], path)
+    np.testing.assert_allclose(c.walls, [[0, 2, 5, 2], [5, 3.2, 5, 2]], atol=1e-12)
+    # (at overshoot 0.2 the 0.5 m left are enough)
+    _, c = _closed([walls[0], [5, 2.5, 5, 1.55]], path, overshoot=0.2)
+    np.testing.assert_allclose(c.walls, [[0, 2, 5, 2], [5, 2.5, 5, 2]], atol=1e-12)
     # a concave corner's wall running 0.8 m past it is not cut (a room wall going on past a
     # face; the convex trim does not apply)
     m, c = _closed([[-0.8, 0, 4, 0], [0, 3, 0, 0.5]], [[2, 1], [1, 2]])
@@ -309,6 +318,16 @@ def test_of_two_landmarks_down_one_corridor_the_nearest_is_the_end() -> None:
     # the other way down the corridor is another end
     ends = corridor_end_walls(_SIDES, [[9.0, 1.2], [-1.0, 1.2]], [[3.0, 1.2], [1.0, 1.2]])
     assert len(ends) == 2
+    # nearest along the corridor, not to the stop that heard it: the end at x = 8 heard from
+    # x = 1 (7 m) stands, the image at x = 12 heard from x = 6 (6 m) does not
+    for order in ([0, 1], [1, 0]):
+        refl = np.array([[8.0, 1.2], [12.0, 1.2]])[order]
+        obs = np.array([[1.0, 1.2], [6.0, 1.2]])[order]
+        ends = corridor_end_walls(_SIDES, refl, obs)
+        np.testing.assert_allclose(_sorted_ends(ends)[:, 0], [8.0, 8.0], atol=1e-9)
+    # and the other way: the end at x = -3 (from x = 3.5) before the image at x = -6 (from -1)
+    ends = corridor_end_walls(_SIDES, [[-6.0, 1.2], [-3.0, 1.2]], [[-1.0, 1.2], [3.5, 1.2]])
+    np.testing.assert_allclose(_sorted_ends(ends)[:, 0], [-3.0, -3.0], atol=1e-9)
 
 
 def test_no_end_wall_off_the_corridor_or_where_a_wall_is_seen() -> None:
@@ -351,3 +370,7 @@ def test_side_walls_close_with_a_confirmed_end_wall_from_farther() -> None:
     np.testing.assert_array_equal(short.walls[:2], np.array(_SIDES, float))
     with pytest.raises(ValueError, match=r"end_reach .*got 0\.0"):
         close_outline(m, np.array(path), end_reach=0.0)
+    # end_walls index the walls: out of range, negative or not integers is an error
+    for bad in ([3], [-1], [2.0]):
+        with pytest.raises(ValueError, match=r"end_walls must index the 3 walls"):
+            close_outline(SlamMap(walls=m.walls, end_walls=np.array(bad)), np.array(path))

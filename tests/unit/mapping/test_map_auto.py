@@ -29,6 +29,14 @@ def test_turning_step_is_the_median_of_the_steps_that_do_not_drive() -> None:
     assert abs(turning_step(odo) - step) < math.radians(0.3)
     assert abs(turning_step(-odo) - step) < math.radians(0.3)  # turning the other way
     assert turning_step(drives) is None and turning_step(np.zeros((0, 3))) is None
+    # a robot taking 3 acquisitions per heading (2 dwells reading the odometry's noise) turns
+    # in the same steps: the dwells are left out (the median over all was 0: measurement
+    # space and the stop graph for 15-degree steps)
+    still = np.column_stack(
+        [rng.normal(0, 0.001, 120), rng.normal(0, 0.001, 120), rng.normal(0, 0.002, 120)]
+    )
+    dwelling = np.concatenate([turns[:, None], still.reshape(60, 2, 3)], 1).reshape(-1, 3)
+    assert abs(turning_step(dwelling) - step) < math.radians(0.3)
 
 
 def test_the_wall_gap_exceeds_the_spacing_of_the_stops() -> None:

@@ -121,9 +121,14 @@ def test_issue_8_the_service_publishes_held_poses_live_and_keeps_time_order() ->
     assert np.allclose(ys, [2.0] * 6 + [3.0] + [2.0] * 3)
 
 
-def _turns(step_deg: float, stops: int = 3, headings: int = 24) -> np.ndarray:
-    """Odometry of a robot turning ``headings`` steps at each stop, 3 m drives between."""
+def _turns(step_deg: float, stops: int = 3, headings: int = 24, dwells: int = 0) -> np.ndarray:
+    """Odometry of a robot turning ``headings`` steps at each stop, 3 m drives between, with
+    ``dwells`` more acquisitions at every heading (a little odometry noise, no turn)."""
+    rng = np.random.default_rng(7)
     turn = np.tile([0.0, 0.0, np.radians(step_deg)], (headings, 1))
+    if dwells:
+        still = rng.normal(0.0, [0.001, 0.001, np.radians(0.1)], (headings, dwells, 3))
+        turn = np.concatenate([turn[:, None, :], still], 1).reshape(-1, 3)
     drive = np.array([[3.0, 0.05, 0.01]])
     return np.vstack([np.vstack([drive, turn]) for _ in range(stops)])
 
@@ -142,8 +147,32 @@ def test_the_support_a_smoothed_landmark_needs_follows_the_turning_step() -> Non
     assert scaled_min_pairs(8, _turns(1.0), ref) == 8
     assert scaled_min_pairs(8, _turns(0.0), ref) == 8
     assert scaled_min_pairs(8, _turns(90.0), ref) == 1
+    # 3 acquisitions per 15-degree heading hear a wall as often as 5-degree steps do
+    assert scaled_min_pairs(8, _turns(15.0, dwells=2), ref) == int(np.ceil(8 * 3.0 / 5.0))
     with pytest.raises(ValueError, match="reference_step"):
         scaled_min_pairs(8, _turns(3.0), 0.0)
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="min_pairs must be an integer >= 1"):
+            scaled_min_pairs(bad, _turns(3.0), ref)
+
+
+def test_the_turning_step_leaves_dwells_out_and_counts_them_per_acquisition() -> None:
+    from fusion_center.mapping.pipeline import turning_step
+
+    odo = _turns(15.0, dwells=2)
+    # the step between headings (echo tracking breaks at it) whatever the dwells
+    assert abs(turning_step(odo) - np.radians(15.0)) < 1e-9
+    assert abs(turning_step(_turns(15.0)) - np.radians(15.0)) < 1e-9
+    # the angle per acquisition on the spot: a third of it
+    assert abs(turning_step(odo, per_acquisition=True) - np.radians(5.0)) < 1e-9
+    assert turning_step(_turns(15.0), per_acquisition=True) == turning_step(_turns(15.0))
+    # no turn on the spot (only dwells, or only drives): None
+    assert turning_step(_turns(0.0)) is None
+    assert turning_step(_turns(0.0, dwells=2), per_acquisition=True) is None
+    import pytest
+
+    with pytest.raises(ValueError, match="drive"):
+        turning_step(odo, drive=float("nan"))
 
 
 def test_the_joint_per_stop_association_is_for_state_space_only() -> None:

@@ -242,6 +242,7 @@ def test_a_merged_group_is_not_absorbed_again_by_a_weaker_landmark() -> None:
         {"merge_dist": -0.1},
         {"stop_gate": -0.1},
         {"stop_gate": float("nan")},
+        {"stop_gate": float("inf")},
         {"stop_min_pairs": 0},
         {"stop_min_pairs": 2.5},
     ],
@@ -306,13 +307,80 @@ def test_the_joint_association_needs_a_common_offset() -> None:
     err = np.array([[0.4, 0.41], [0.39, 0.4], [0.42, 0.4], [0.3, 0.3], [0.55, 0.55], [0, 0]])
     out = smoother._associate_by_stop(lm, stop, pair, landmark, err)
     assert out.tolist() == [0, 0, 0, -1, -1, 0]
-    # a different direction of arrival (r1 - r2 off by 0.5 m) is no common range offset
-    err2 = err.copy()
-    err2[:3] = [[0.15, 0.65], [0.16, 0.64], [0.14, 0.66]]
-    assert smoother._associate_by_stop(lm, stop, pair, landmark, err2).tolist() == lm.tolist()
     # two pairs are too few (stop_min_pairs = 3)
     two = smoother._associate_by_stop(lm, stop, pair[1:], landmark[1:], err[1:])
     assert two.tolist() == lm.tolist()
+
+
+def test_the_joint_association_needs_one_direction_of_arrival() -> None:
+    smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
+    # one stop: four pairs 0.4 m off at both receivers, and three whose mean residual is the
+    # same 0.4 m, each receiver within gate (0.25 m) of it, but whose receivers differ by
+    # 0.3-0.45 m (another direction of arrival: another reflector's echo)
+    err = np.array(
+        [
+            [0.4, 0.41],
+            [0.39, 0.4],
+            [0.42, 0.4],
+            [0.41, 0.39],
+            [0.55, 0.25],
+            [0.6, 0.2],
+            [0.62, 0.18],
+        ]
+    )
+    assert np.allclose(err.mean(1), 0.4, atol=0.01)
+    lm = np.full(7, -1)
+    stop = np.zeros(7, np.int64)
+    pair = np.arange(7)
+    out = smoother._associate_by_stop(lm, stop, pair, np.zeros(7, np.int64), err)
+    assert out.tolist() == [0, 0, 0, 0, -1, -1, -1]
+    # the rule follows range_sigma: at a 0.05 m noise a 0.3 m difference is 4 sigma off
+    loose = LeastSquaresPathMapSmoother(
+        ANTENNAS, SmootherConfig(stop_gate=0.6, range_sigma=0.12)
+    )._associate_by_stop(lm, stop, pair, np.zeros(7, np.int64), err)
+    assert loose.tolist() == [0] * 7
+
+
+def test_the_joint_association_skips_a_landmark_the_stop_has_already() -> None:
+    smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
+    # three pairs 0.4 m off alike, and a fourth pair of the stop on landmark 0 already (its
+    # echo from there is known: the three are other echoes)
+    err = np.array([[0.4, 0.41], [0.39, 0.4], [0.42, 0.4]])
+    stop = np.zeros(4, np.int64)
+    landmark = np.zeros(3, np.int64)
+    pair = np.arange(3)
+    known = smoother._associate_by_stop(np.array([-1, -1, -1, 0]), stop, pair, landmark, err)
+    assert known.tolist() == [-1, -1, -1, 0]
+    free = smoother._associate_by_stop(np.array([-1, -1, -1, -1]), stop, pair, landmark, err)
+    assert free.tolist() == [0, 0, 0, -1]
+    # the fourth pair on another landmark does not block landmark 0
+    other = smoother._associate_by_stop(np.array([-1, -1, -1, 1]), stop, pair, landmark, err)
+    assert other.tolist() == [0, 0, 0, 1]
+    # nor does a pair of another stop on landmark 0
+    two = smoother._associate_by_stop(
+        np.array([-1, -1, -1, 0]), np.r_[0, 0, 0, 1], pair, landmark, err
+    )
+    assert two.tolist() == [0, 0, 0, 0]
+
+
+@pytest.mark.parametrize("near", [0, 1])
+def test_a_pair_qualifying_for_two_landmarks_takes_the_smaller_offset(near: int) -> None:
+    smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
+    # three pairs of one stop, each a candidate of both landmarks: 0.30 m off one (``near``),
+    # 0.45 m off the other; both groups pass on their own
+    base = np.array([[0.0, 0.01], [-0.01, 0.0], [0.02, 0.0]])
+    pair = np.r_[np.arange(3), np.arange(3)]
+    landmark = np.r_[np.zeros(3, np.int64), np.ones(3, np.int64)]
+    offset = np.where(landmark == near, 0.30, 0.45)
+    err = base[pair] + offset[:, None]
+    out = smoother._associate_by_stop(np.full(3, -1), np.zeros(3, np.int64), pair, landmark, err)
+    assert out.tolist() == [near] * 3
+    # alone, the farther landmark's group would be associated
+    far = landmark != near
+    alone = smoother._associate_by_stop(
+        np.full(3, -1), np.zeros(3, np.int64), pair[far], landmark[far], err[far]
+    )
+    assert alone.tolist() == [1 - near] * 3
 
 
 def test_a_landmark_heard_from_one_stop_has_that_stop_as_its_observer() -> None:

@@ -38,6 +38,14 @@ TURN_CORRECTIONS_KEPT = 1000
 #: room_pillar seed 0 with the filter (3-degree steps, measurement space): 18 m more wall
 #: matching no face, 6 more false corners (docs/mapping.md, twelfth round).
 STATE_STOP_GATE = 0.6
+#: ``SmootherConfig.keyframe_turn`` (rad) and ``sigma_floor`` (m) of :meth:`EchoSlamMapper.smooth`
+#: with state-space association (measurement space: 0, off). corridor_L_sparse and its
+#: spread-stop and drive-start variants (15-degree steps, 36 runs): a key pose at every
+#: acquisition and each landmark's own residual scale took the first stop's in-turn heading
+#: drift out (seed 1: 2.7 -> 0.9 degrees), mean path 0.339 -> 0.271 m (docs/mapping.md,
+#: "The sparse corridor's path").
+STATE_KEYFRAME_TURN = float(np.radians(10.0))
+STATE_SIGMA_FLOOR = 0.01
 
 
 def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
@@ -605,8 +613,11 @@ class EchoSlamMapper:
 
     def smoother_config(self) -> SmootherConfig:
         """:meth:`smooth`'s default :class:`SmootherConfig`: the filter's range and slip noise
-        and field of view, and the joint per-stop association (``stop_gate``,
-        :data:`STATE_STOP_GATE`) with state-space association only."""
+        and field of view; with state-space association only, the joint per-stop association
+        (``stop_gate``, :data:`STATE_STOP_GATE`), a key pose every
+        :data:`STATE_KEYFRAME_TURN` of turning and each landmark's own range noise
+        (``sigma_floor``, :data:`STATE_SIGMA_FLOOR`)."""
+        state = not self.measurement_space
         fc = self.filter.config
         return SmootherConfig(
             range_sigma=fc.range_sigma,
@@ -618,7 +629,10 @@ class EchoSlamMapper:
             drive_distance=self.config.drive_reset,
             # on room_pillar's measurement-space echo tracks (filter seed 0, 3-degree steps)
             # the joint association added 18 m of wall matching no face and 6 false corners
-            stop_gate=STATE_STOP_GATE if not self.measurement_space else 0.0,
+            stop_gate=STATE_STOP_GATE if state else 0.0,
+            # not measured on room_pillar's filter runs (measurement space): left off there
+            keyframe_turn=STATE_KEYFRAME_TURN if state else 0.0,
+            sigma_floor=STATE_SIGMA_FLOOR if state else 0.0,
         )
 
     def map(self, min_hits: int = 8) -> SlamMap:

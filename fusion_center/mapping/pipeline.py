@@ -38,6 +38,14 @@ TURN_CORRECTIONS_KEPT = 1000
 #: room_pillar seed 0 with the filter (3-degree steps, measurement space): 18 m more wall
 #: matching no face, 6 more false corners (docs/mapping.md, twelfth round).
 STATE_STOP_GATE = 0.6
+#: ``SmootherConfig.keyframe_turn`` (rad) and ``sigma_floor`` (m) of :meth:`EchoSlamMapper.smooth`
+#: with state-space association (measurement space: 0, off). corridor_L_sparse and its
+#: spread-stop and drive-start variants (15-degree steps, 36 runs): a key pose at every
+#: acquisition and each landmark's own residual scale took the first stop's in-turn heading
+#: drift out (seed 1: 2.7 -> 0.9 degrees), mean path 0.339 -> 0.271 m (docs/mapping.md,
+#: "The sparse corridor's path").
+STATE_KEYFRAME_TURN = float(np.radians(10.0))
+STATE_SIGMA_FLOOR = 0.01
 
 
 def array_geometry(antennas: Mapping[str, Any], rx: Sequence[str]) -> FloatArray:
@@ -577,6 +585,7 @@ class EchoSlamMapper:
         extend: float = 1.0,
         min_pairs_step: float | None = np.radians(3.0),
         end_walls: bool | None = None,
+        filter_mount: bool | None = None,
     ) -> tuple[SlamMap, FloatArray] | None:
         """Map and path after joint least-squares smoothing of the whole run (graph SLAM,
         :class:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother`; beyond the
@@ -608,6 +617,14 @@ class EchoSlamMapper:
             None: with state-space association only (coarse turning steps; on room_pillar
             seed 0 mapped by the filter in measurement space, 3-degree steps, 27 landmarks
             came from one stop and one became a wall matching no face).
+        filter_mount : bool or None
+            Smooth with the heaviest particle's array orientation (``RbpfSlam.mount``),
+            else with the array geometry's own (0). None: the particle's with
+            measurement-space association only. Each particle's orientation is a draw from
+            the 1-degree prior (``SlamConfig.mount_sigma``) that the filter keeps by
+            selection: with the state-space smoother's sharp bearings (``sigma_floor``) that
+            draw turns every wall (corridor_L_sparse and its variants, 8 seeds: 0.253 m
+            mean path with the draw, 0.214 m with 0).
 
         Returns
         -------
@@ -629,7 +646,7 @@ class EchoSlamMapper:
         cfg = config or self.smoother_config()
         b = int(np.argmax(f.logw))
         smoother = LeastSquaresPathMapSmoother(
-            f.antennas, cfg, bias=float(f.bias[b]), mount=float(f.mount[b])
+            f.antennas, cfg, bias=float(f.bias[b]), mount=self.smoother_mount(filter_mount)
         )
         t = np.array([h[0] for h in hist])
         poses = np.array([self._final[h[0]] for h in hist])
@@ -652,10 +669,20 @@ class EchoSlamMapper:
         or for None with state-space association only (see :meth:`smooth`)."""
         return bool(end_walls) if end_walls is not None else not self.measurement_space
 
+    def smoother_mount(self, filter_mount: bool | None = None) -> float:
+        """Array orientation against the heading (rad) that :meth:`smooth` uses: the heaviest
+        particle's with ``filter_mount`` (None: with measurement-space association only),
+        else 0, the array geometry's own (see :meth:`smooth`)."""
+        use = self.measurement_space if filter_mount is None else filter_mount
+        return float(self.filter.mount[int(np.argmax(self.filter.logw))]) if use else 0.0
+
     def smoother_config(self) -> SmootherConfig:
         """:meth:`smooth`'s default :class:`SmootherConfig`: the filter's range and slip noise
-        and field of view, and the joint per-stop association (``stop_gate``,
-        :data:`STATE_STOP_GATE`) with state-space association only."""
+        and field of view; with state-space association only, the joint per-stop association
+        (``stop_gate``, :data:`STATE_STOP_GATE`), a key pose every
+        :data:`STATE_KEYFRAME_TURN` of turning and each landmark's own range noise
+        (``sigma_floor``, :data:`STATE_SIGMA_FLOOR`)."""
+        state = not self.measurement_space
         fc = self.filter.config
         return SmootherConfig(
             range_sigma=fc.range_sigma,
@@ -667,7 +694,10 @@ class EchoSlamMapper:
             drive_distance=self.config.drive_reset,
             # on room_pillar's measurement-space echo tracks (filter seed 0, 3-degree steps)
             # the joint association added 18 m of wall matching no face and 6 false corners
-            stop_gate=STATE_STOP_GATE if not self.measurement_space else 0.0,
+            stop_gate=STATE_STOP_GATE if state else 0.0,
+            # not measured on room_pillar's filter runs (measurement space): left off there
+            keyframe_turn=STATE_KEYFRAME_TURN if state else 0.0,
+            sigma_floor=STATE_SIGMA_FLOOR if state else 0.0,
         )
 
     def map(self, min_hits: int = 8) -> SlamMap:

@@ -40,6 +40,7 @@ from scipy.optimize import least_squares
 
 from fusion_center.mapping.features import LandmarkSet
 from fusion_center.mapping.models import CORNER, POINT, WALL, predict, wall_tangent
+from fusion_center.mapping.turn_closure import group_median
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -53,6 +54,12 @@ class SmootherConfig:
     ----------
     keyframe_step : int
         Acquisitions per key pose (a drive always starts a new one).
+    keyframe_turn : float
+        A turn of at least this since the last key pose (the sum of the odometry's
+        ``|dyaw|``) also starts a key pose, rad (0: off). The acquisitions between key poses
+        hang off theirs through the odometry alone, so their echoes cannot correct the
+        heading they drift by in between: at 15-degree steps 5 acquisitions are 75 degrees
+        of turn (corridor_L_sparse).
     drive_distance : float
         Odometry translation of one step, m, that counts as a drive to a new stop.
     range_sigma : float
@@ -102,6 +109,16 @@ class SmootherConfig:
         heading drift, the stop placed by odometry) and never used.
     stop_min_pairs : int
         Pairs a stop's joint association needs (>= 1).
+    sigma_floor : float
+        With a value above 0, each landmark's range noise is the robust scale of its
+        associated pairs' residuals (1.4826 times their median absolute residual, taken
+        afresh before each round), at least this and at most ``range_sigma``, m; 0: every
+        landmark has ``range_sigma``. The same rule as the stop graph's bundle adjustment
+        (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`, which uses 1 cm):
+        a wall echoes within millimetres (corridor_L_sparse at the true path: 2-3 mm robust
+        residual scale), while ``range_sigma`` is sized for the filter's landmarks, which
+        are themselves off; at 5 cm a pair's range difference (its bearing, eq. (7)-(10))
+        weighs less than one step of the odometry's heading.
     """
 
     keyframe_step: int = 5
@@ -125,6 +142,8 @@ class SmootherConfig:
     kind_switch_ratio: float = 0.7
     stop_gate: float = 0.0
     stop_min_pairs: int = 3
+    keyframe_turn: float = 0.0
+    sigma_floor: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.kind_switch_ratio <= 1.0:
@@ -135,6 +154,10 @@ class SmootherConfig:
         if not 0.0 <= self.stop_gate < np.inf:
             # inf would make every in-view pair a candidate of every landmark
             raise ValueError(f"stop_gate must be finite and >= 0, got {self.stop_gate}")
+        if not self.keyframe_turn >= 0.0:
+            raise ValueError(f"keyframe_turn must be >= 0, got {self.keyframe_turn}")
+        if not 0.0 <= self.sigma_floor <= self.range_sigma:
+            raise ValueError(f"sigma_floor must be in [0, range_sigma], got {self.sigma_floor}")
         k = self.stop_min_pairs
         if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
             raise ValueError(f"stop_min_pairs must be an integer >= 1, got {k!r}")
@@ -595,10 +618,14 @@ class LeastSquaresPathMapSmoother:
         stop_of = np.cumsum(drive)
         key = np.zeros(n, bool)
         last = 0
+        turned = 0.0
+        turn_key = cfg.keyframe_turn if cfg.keyframe_turn > 0.0 else np.inf
         for i in range(n):  # n is a few thousand: cheap, and the rule is sequential
-            if i == 0 or drive[i] or i - last >= cfg.keyframe_step:
+            turned += abs(odo[i, 2]) if i > 0 else 0.0
+            if i == 0 or drive[i] or i - last >= cfg.keyframe_step or turned >= turn_key:
                 key[i] = True
                 last = i
+                turned = 0.0
         key_idx = np.flatnonzero(key)
         key_of = np.cumsum(key) - 1
         # pose of every acquisition relative to its key pose, from the odometry
@@ -675,7 +702,21 @@ class LeastSquaresPathMapSmoother:
                 lm = self._associate_by_stop(lm, stop_of[acq], pi, li, err)
             return lm
 
-        def build(assoc: IntArray):
+        def landmark_sigma(x: FloatArray, assoc: IntArray) -> FloatArray:
+            """Each landmark's range noise at ``x``, m (``SmootherConfig.sigma_floor``)."""
+            sig = np.full(n_lm, cfg.range_sigma)
+            use = np.flatnonzero(assoc >= 0)
+            if cfg.sigma_floor <= 0.0 or use.size == 0:
+                return sig
+            kp, st = unpack(x)
+            tx, rx, _ = self._array(all_poses(kp)[acq[use]])
+            r, _, _ = self._predict(kinds[assoc[use]], st[assoc[use]], tx, rx)
+            mad = group_median(np.abs(z[use] - r).mean(1), assoc[use], n_lm)
+            seen = np.bincount(assoc[use], minlength=n_lm) > 0
+            sig[seen] = np.clip(1.4826 * mad[seen], cfg.sigma_floor, cfg.range_sigma)
+            return sig
+
+        def build(assoc: IntArray, lm_sigma: FloatArray):
             use = np.flatnonzero(assoc >= 0)
             z_u, a_u, l_u = z[use], acq[use], assoc[use]
             k_u = key_of[a_u]
@@ -720,7 +761,7 @@ class LeastSquaresPathMapSmoother:
                 pa = _compose(kp[k_u], rel[a_u])
                 tx, rx, _ = self._array(pa)
                 r, _, _ = self._predict(kinds[l_u], st[l_u], tx, rx)
-                res_m = ((z_u - r) / cfg.range_sigma).reshape(-1)
+                res_m = ((z_u - r) / lm_sigma[l_u, None]).reshape(-1)
                 # Cauchy loss on the echoes only (a wrong association must not pull), as a
                 # residual transform: 0.5 * sum(res**2) is then the robust cost; the odometry
                 # stays quadratic, so a stop the filter lost is pulled back by its drives
@@ -744,7 +785,7 @@ class LeastSquaresPathMapSmoother:
         assoc = np.full(z.shape[0], -1)
         for rnd in range(max(cfg.rounds, 1)):
             assoc = associate(x)
-            fun, sparsity = build(assoc)
+            fun, sparsity = build(assoc, landmark_sigma(x, assoc))
             sol = least_squares(
                 fun,
                 x,

@@ -190,6 +190,42 @@ def test_the_joint_per_stop_association_is_for_state_space_only() -> None:
     assert cfg.range_sigma == mapper("state").filter.config.range_sigma
 
 
+def test_coarse_turn_settings_of_the_smoother_are_for_state_space_only() -> None:
+    from fusion_center.mapping import SlamConfig
+    from fusion_center.mapping.pipeline import STATE_KEYFRAME_TURN, STATE_SIGMA_FLOOR
+
+    def config(association: str):
+        slam = SlamConfig(association=association)
+        m = EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
+        return m.smoother_config()
+
+    state, meas = config("state"), config("measurement")
+    # a key pose at every 15-degree step, not at room_pillar's 3-degree ones
+    assert np.radians(3.0) * 3 < state.keyframe_turn == STATE_KEYFRAME_TURN < np.radians(15.0)
+    assert 0.0 < state.sigma_floor == STATE_SIGMA_FLOOR < state.range_sigma
+    # not measured on room_pillar's filter runs (measurement space): unchanged there
+    assert meas.keyframe_turn == 0.0 and meas.sigma_floor == 0.0
+
+
+def test_the_state_space_smoother_keeps_the_arrays_own_orientation() -> None:
+    from fusion_center.mapping import SlamConfig
+
+    def mapper(association: str) -> EchoSlamMapper:
+        slam = SlamConfig(association=association, mount_sigma=np.radians(1.0), seed=4)
+        m = EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
+        m.filter.logw[:] = -np.arange(m.filter.logw.size, dtype=float)  # particle 0 heaviest
+        return m
+
+    state, meas = mapper("state"), mapper("measurement")
+    drawn = float(state.filter.mount[0])
+    assert abs(drawn) > 1e-4  # a particle's draw from the 1-degree prior
+    # state space (sharp bearings, coarse turns): the draw would turn every wall
+    assert state.smoother_mount() == 0.0
+    assert state.smoother_mount(filter_mount=True) == drawn
+    assert meas.smoother_mount() == float(meas.filter.mount[0]) != 0.0
+    assert meas.smoother_mount(filter_mount=False) == 0.0
+
+
 def _one_stop_result(kinds, states, pairs, stops, observer) -> SmoothedPathMap:
     n = len(kinds)
     return SmoothedPathMap(

@@ -42,8 +42,9 @@ STATE_STOP_GATE = 0.6
 #: with state-space association (measurement space: 0, off). corridor_L_sparse and its
 #: spread-stop and drive-start variants (15-degree steps, 36 runs): a key pose at every
 #: acquisition and each landmark's own residual scale took the first stop's in-turn heading
-#: drift out (seed 1: 2.7 -> 0.9 degrees), mean path 0.339 -> 0.271 m (docs/mapping.md,
-#: "The sparse corridor's path").
+#: drift out (seed 1: 2.7 -> 0.9 degrees); with the array's own mount (``smoother_mount``),
+#: 40 recordings (seeds 1-8): mean path 0.253 -> 0.220 m, outline 68.9 -> 70.1 %; seed 3 is
+#: worse (docs/mapping.md, "The sparse corridor's path").
 STATE_KEYFRAME_TURN = float(np.radians(10.0))
 STATE_SIGMA_FLOOR = 0.01
 

@@ -16,6 +16,7 @@ from fusion_center.mapping.stop_graph import (
     StopGraphPathEstimator,
     StopPoseGraph,
     StopScan,
+    _innovation,
     images_seen_from,
     pose_shift,
     predicted_images,
@@ -322,6 +323,8 @@ def test_bad_input_gives_one_line_value_errors() -> None:
         StopGraphConfig(bundle_max_shift=0.0)
     with pytest.raises(ValueError, match=r"^StopGraphConfig.loop_defer must be numbers > 0"):
         StopGraphConfig(loop_defer=(1.0, -1.0))
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.loop_gate must be > 0"):
+        StopGraphConfig(loop_gate=float("nan"))
     for msg in (
         str(_catch(lambda: StopGraphConfig(min_matched=0))),
         str(_catch(lambda: StopGraphConfig(min_explained=2.0))),
@@ -755,3 +758,60 @@ def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndar
     assert max(widths0) > 1.0 and err0.max() > 0.05
     assert len(widths1) == len(widths0)  # the same candidates, tried later
     assert max(widths1) <= 1.0 and err1.max() < 0.01
+
+
+def test_innovation_is_the_mahalanobis_distance_under_both_covariances() -> None:
+    """Prior and registration covariances add; the yaw difference is wrapped."""
+    cov = np.diag([0.03**2, 0.04**2, 0.02**2])
+    reg = Registration(
+        pose=np.array([0.1, 0.0, -np.pi + 0.01]), cov=cov, explained=1.0, matched=3, accepted=True
+    )
+    prior = np.array([0.0, 0.2, np.pi - 0.01])
+    d = np.array([0.1, -0.2, 0.02])
+    expect = np.sqrt(np.sum(d**2 / (2 * np.diag(cov))))
+    assert _innovation(reg, prior, cov) == pytest.approx(expect, rel=1e-9)
+
+
+def test_loop_gate_refuses_a_match_outside_its_prior(run: tuple[ScanLog, np.ndarray]) -> None:
+    """Stops 1-2-3 are joined by odometry alone and the only loop, stop 3 in stop 1, comes
+    back 0.4 m off (several sigmas of its prior), with a covariance as wide as the prior's;
+    the other registrations are exact. Without the gate the wrong loop enters the graph and
+    moves stop 3 by centimetres; with ``loop_gate=3`` it is refused as outside the prior and
+    the stops are those of the graph without the loop."""
+    log, poses = run
+    segs = segment_stops(log.odometry)
+    truth = np.array([poses[s] for s, _ in segs])
+    index = {s: k for k, (s, _) in enumerate(segs)}
+
+    def solve(gate: float, loop: bool = True) -> tuple[np.ndarray, list[Registration]]:
+        cfg = StopGraphConfig(
+            refine_turns=False,
+            bundle_adjust=False,
+            loop_window=(0.005, np.radians(0.1)),
+            loop_gate=gate,
+        )
+        est = StopGraphPathEstimator(ANTENNAS, cfg)
+
+        def fake(a: StopScan, b: StopScan, prior: np.ndarray, cov: np.ndarray) -> Registration:
+            i, j = index[a.start], index[b.start]
+            refused = Registration(
+                pose=prior, cov=cov, explained=0.0, matched=0, accepted=False, reason="x"
+            )
+            if (j == i + 1 and i in (1, 2)) or (j > i + 1 and ((i, j) != (1, 3) or not loop)):
+                return refused
+            z = relative_pose(truth[i], truth[j])
+            tight = np.diag([1e-4, 1e-4, 1e-6])
+            if (i, j) == (1, 3):
+                z, tight = z + np.array([0.4, 0.0, 0.0]), cov
+            return Registration(pose=z, cov=tight, explained=1.0, matched=5, accepted=True)
+
+        est.registration.register_both = fake  # type: ignore[method-assign]
+        res = est.estimate(log)
+        return res.stop_poses, [r for i, j, r in res.registrations if (i, j) == (1, 3)]
+
+    without, _ = solve(np.inf, loop=False)
+    poses0, reg0 = solve(np.inf)
+    poses1, reg1 = solve(3.0)
+    assert reg0[0].accepted and np.hypot(*(poses0[3, :2] - without[3, :2])) > 0.03
+    assert not reg1[0].accepted and reg1[0].reason == "outside the prior"
+    np.testing.assert_allclose(poses1, without, atol=1e-9)

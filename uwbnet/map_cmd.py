@@ -117,6 +117,7 @@ class MapStats:
     bundle_unconverged: int | None = None
     bundle_shift: float | None = None
     bundle_dropped: bool | None = None
+    drives_turn: bool | None = None
     eval: dict[str, Any] | None = None
     eval_filter: dict[str, Any] | None = None
 
@@ -289,6 +290,14 @@ def _map_by_stops(
     if res.bundle_shift is not None and np.isfinite(res.bundle_shift):
         stats.bundle_shift = round(float(res.bundle_shift), 3)
     stats.bundle_dropped = res.bundle_dropped if config.bundle_adjust else None
+    stats.drives_turn = res.drives_turn
+    if res.drives_turn:
+        log.info(
+            "%s: the robot turns with its drives: loop search deferred to narrow priors, "
+            "gated at %.1f sigma",
+            path,
+            config.drive_loop_gate,
+        )
     if res.bundle_unconverged and not res.bundle_dropped:
         log.warning(
             "%s: %d solve(s) of the bundle adjustment stopped before converging",
@@ -495,6 +504,7 @@ def map_recording(
             bundle_unconverged=stats.bundle_unconverged,
             bundle_shift=stats.bundle_shift,
             bundle_dropped=stats.bundle_dropped,
+            drives_turn=stats.drives_turn,
         )
     _write_atomic(Path(out), json.dumps(doc, separators=(",", ":")).encode())
     truth_traj = truth_first_frame(truth)

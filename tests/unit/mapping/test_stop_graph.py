@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from fusion_center.mapping.stop_graph import (
     StopPoseGraph,
     StopScan,
     _innovation,
+    drive_turn,
     images_seen_from,
     pose_shift,
     predicted_images,
@@ -321,8 +323,16 @@ def test_bad_input_gives_one_line_value_errors() -> None:
         StopGraphConfig(closure_link_scatter=float("nan"))
     with pytest.raises(ValueError, match=r"^StopGraphConfig.bundle_max_shift must be > 0"):
         StopGraphConfig(bundle_max_shift=0.0)
-    with pytest.raises(ValueError, match=r"^StopGraphConfig.loop_defer must be numbers > 0"):
-        StopGraphConfig(loop_defer=(1.0, -1.0))
+    # a float, a string or a list (unhashable in the frozen config) is refused in one line
+    for bad in ((1.0, -1.0), 1.0, ("a",), [1.0]):
+        with pytest.raises(ValueError, match=r"^StopGraphConfig.loop_defer must be a tuple"):
+            StopGraphConfig(loop_defer=bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.drive_loop_defer must be a tuple"):
+        StopGraphConfig(drive_loop_defer=(0.0,))
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.drive_loop_gate must be > 0"):
+        StopGraphConfig(drive_loop_gate=0.0)
+    with pytest.raises(ValueError, match=r"^StopGraphConfig.drive_turn must be >= 0"):
+        StopGraphConfig(drive_turn=float("nan"))
     with pytest.raises(ValueError, match=r"^StopGraphConfig.loop_gate must be > 0"):
         StopGraphConfig(loop_gate=float("nan"))
     for msg in (
@@ -722,13 +732,14 @@ def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndar
     index = {s: k for k, (s, _) in enumerate(segs)}
     window = (0.05, np.radians(3.0))
 
-    def solve(defer: tuple[float, ...]) -> tuple[np.ndarray, list[float]]:
+    def solve(defer: tuple[float, ...], **kw: Any) -> tuple[np.ndarray, list[float]]:
         cfg = StopGraphConfig(
             refine_turns=False,
             bundle_adjust=False,
             loop_window=(0.005, np.radians(0.1)),
             window=window,
             loop_defer=defer,
+            **{"drive_turn": np.inf, **kw},
         )
         est = StopGraphPathEstimator(ANTENNAS, cfg)
         widths: list[float] = []
@@ -758,6 +769,32 @@ def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndar
     assert max(widths0) > 1.0 and err0.max() > 0.05
     assert len(widths1) == len(widths0)  # the same candidates, tried later
     assert max(widths1) <= 1.0 and err1.max() < 0.01
+    # a robot that turns with its drives takes drive_loop_defer in place of loop_defer
+    turn = drive_turn(log.odometry)
+    assert turn > 0.0
+    on = {"drive_loop_defer": (1.0,), "drive_loop_gate": np.inf}
+    err2, widths2 = solve((), drive_turn=0.5 * turn, **on)
+    np.testing.assert_allclose(err2, err1, atol=1e-9)
+    assert widths2 == widths1
+    err3, _ = solve((), drive_turn=2.0 * turn, **on)
+    np.testing.assert_allclose(err3, err0, atol=1e-9)
+
+
+def test_drive_turn_is_the_median_turn_of_the_drives(run: tuple[ScanLog, np.ndarray]) -> None:
+    """Steps over 0.1 m are drives; their yaw is wrapped; turns on the spot do not count."""
+    odo = np.array(
+        [
+            [0.0, 0.0, 0.05],  # a turning step on the spot
+            [1.0, 0.0, np.radians(80.0)],
+            [0.0, -0.5, -np.radians(90.0)],
+            [0.3, 0.3, 2 * np.pi - np.radians(10.0)],  # wraps to -10 degrees
+            [0.05, 0.0, 1.0],  # shorter than 0.1 m: not a drive
+        ]
+    )
+    assert drive_turn(odo) == pytest.approx(np.radians(80.0))
+    assert drive_turn(odo[[0, 4]]) == 0.0 and drive_turn(np.zeros((0, 3))) == 0.0
+    res = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(drive_turn=np.inf)).estimate(run[0])
+    assert not res.drives_turn
 
 
 def test_innovation_is_the_mahalanobis_distance_under_both_covariances() -> None:

@@ -532,9 +532,9 @@ def map_recording(
 
 def _association(method: str, first: list[Ir]) -> str:
     """The filter's data association: ``method``, or for ``auto`` state space when the
-    median turning step (``|odom dyaw|`` of the steps that do not drive, > 0.1 m, and turn;
-    :func:`turning_step`) of the
-    ``first`` acquisitions reaches :data:`AUTO_STATE_STEP`, else measurement space."""
+    median turning step of the ``first`` acquisitions (``|odom dyaw|`` of the steps that
+    turn without driving 0.1 m; :func:`turning_step`) reaches :data:`AUTO_STATE_STEP`, else
+    measurement space."""
     if method != "auto":
         return method
     odo = np.array([m.odom for m in first[1:] if m.odom is not None], float).reshape(-1, 3)

@@ -17,8 +17,9 @@ Figures (metres, degrees):
   the reflex vertex of an L-shaped room, which is an edge below); for
   each, the nearest mapped corner within 0.5 m; ``false`` counts the mapped corners farther
   than 0.5 m from every true corner.
-* ``walls.unsupported_aligned_m`` and ``corners.false_aligned`` (with a trajectory and true
-  poses) are the same after the best rigid fit of the path to the truth is applied to the map:
+* ``walls.unsupported_aligned_m``, ``corners.false_aligned`` and ``corners.aligned_m`` (the
+  corner errors' statistics; with a trajectory and true poses) are the same after the best
+  rigid fit of the path to the truth is applied to the map:
   what is left besides one rotation and shift of the whole map, e.g. a heading error made at
   the first stop.
 * points: convex edges of the objects (their vertical edges away from the room walls) and the
@@ -142,6 +143,15 @@ def _false_corners(mapped: np.ndarray, true: np.ndarray, gate: float = 0.5) -> i
     return int((np.linalg.norm(mapped[:, None] - true[None], axis=-1).min(1) > gate).sum())
 
 
+def _corner_errors(mapped: np.ndarray, corners: np.ndarray, reach: float = 0.5) -> list[float]:
+    """For each true corner (k, 2), the distance (m) to the nearest ``mapped`` corner (m, 2)
+    when within ``reach``; corners with none that near are left out (not found)."""
+    if not len(mapped) or not len(corners):
+        return []
+    d = np.linalg.norm(np.asarray(corners)[:, None] - np.asarray(mapped)[None], axis=2).min(1)
+    return [float(v) for v in d[d < reach]]
+
+
 def _stats(x: list[float]) -> dict[str, float | int]:
     if not x:
         return {"n": 0}
@@ -226,13 +236,11 @@ def evaluate_map(
         ),
     }
     mc = np.array(doc["corners"], float).reshape(-1, 2)
-    c_err = []
-    for c in corners:
-        if len(mc):
-            d = np.linalg.norm(mc - c, axis=1).min()
-            if d < 0.5:
-                c_err.append(float(d))
-    out["corners"] = {"true": len(corners), "mapped": len(mc), **_stats(c_err)}
+    out["corners"] = {
+        "true": len(corners),
+        "mapped": len(mc),
+        **_stats(_corner_errors(mc, corners)),
+    }
     out["walls"]["unsupported_m"] = round(_unsupported_length(walls, faces), 2)
     out["corners"]["false"] = _false_corners(mc, corners)
     traj = np.array(doc["trajectory"], float).reshape(-1, 4)
@@ -241,6 +249,7 @@ def evaluate_map(
         fitted = np.hstack([walls[:, :2] @ r + shift, walls[:, 2:] @ r + shift])
         out["walls"]["unsupported_aligned_m"] = round(_unsupported_length(fitted, faces), 2)
         out["corners"]["false_aligned"] = _false_corners(mc @ r + shift, corners)
+        out["corners"]["aligned_m"] = _stats(_corner_errors(mc @ r + shift, corners))
     mp = np.array(doc["points"], float).reshape(-1, 2)
     e_err = []
     for p in edges:

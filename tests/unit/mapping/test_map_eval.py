@@ -115,6 +115,13 @@ def test_unsupported_length_and_false_corners_with_and_without_the_path_fit() ->
     # once the rotation is removed only the invented metre past the corner is unsupported
     assert abs(me._unsupported_length(fitted, faces) - 0.8) < 0.05
     assert me._false_corners(corner @ r + shift, np.array([[10.0, 0]])) == 0
+    # the corner's error, 0.52 m in the first-pose frame (not found within 0.5 m), is gone
+    # once the path's rotation is removed
+    true_corner = np.array([[10.0, 0], [0.0, 5.0]])
+    assert me._corner_errors(corner, true_corner) == []
+    aligned = me._corner_errors(corner @ r + shift, true_corner)
+    assert len(aligned) == 1 and aligned[0] < 1e-6
+    assert me._corner_errors(np.zeros((0, 2)), true_corner) == []
 
 
 @pytest.mark.parametrize("clockwise", [False, True])

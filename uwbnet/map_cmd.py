@@ -520,11 +520,12 @@ def map_recording(
         dr = np.array(dead) if has_odom else None
         stats.eval = evaluate_map(doc, scenario, truth_traj, first, dr)
         if stats.smoothed and filter_map is not None:
+            # rounded as map.json is, so it scores what --no-smooth writes, to the digit
             raw = {
-                "walls": filter_map.walls.tolist(),
-                "corners": filter_map.corners.tolist(),
-                "points": filter_map.points.tolist(),
-                "trajectory": filter_traj,
+                "walls": np.round(filter_map.walls, 4).tolist(),
+                "corners": np.round(filter_map.corners, 4).tolist(),
+                "points": np.round(filter_map.points, 4).tolist(),
+                "trajectory": [[round(v, 5) for v in row] for row in filter_traj],
             }
             stats.eval_filter = evaluate_map(raw, scenario, truth_traj, first, None)
     return stats

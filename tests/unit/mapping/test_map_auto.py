@@ -52,7 +52,7 @@ def test_the_wall_gap_exceeds_the_spacing_of_the_stops() -> None:
     gap = stop_wall_gap(sparse)
     assert abs(gap - STOP_WALL_GAP_SPACING * 1.5) < 0.05
     assert stop_wall_gap(sparse[:1]) == floor and stop_wall_gap(np.zeros((0, 2))) == floor
-    # stops 3 m apart (corridor_L_sparse forced onto the stop graph) would give 4.5 m, enough
+    # stops 3 m apart (a sparse corridor forced onto the stop graph) would give 4.5 m, enough
     # to merge two walls across a doorway: capped
     far = np.array([[0.0, 0.0], [3.0, 0.0], [6.0, 0.0], [9.0, 0.0]])
     assert stop_wall_gap(far) == STOP_WALL_GAP_MAX < STOP_WALL_GAP_SPACING * 3.0

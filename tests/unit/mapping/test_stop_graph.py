@@ -18,8 +18,8 @@ from fusion_center.mapping.stop_graph import (
     StopPoseGraph,
     StopScan,
     _innovation,
-    drive_turn,
     images_seen_from,
+    median_drive_turn,
     pose_shift,
     predicted_images,
     refine_turns,
@@ -770,7 +770,7 @@ def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndar
     assert len(widths1) == len(widths0)  # the same candidates, tried later
     assert max(widths1) <= 1.0 and err1.max() < 0.01
     # a robot that turns with its drives takes drive_loop_defer in place of loop_defer
-    turn = drive_turn(log.odometry)
+    turn = median_drive_turn(log.odometry)
     assert turn > 0.0
     on = {"drive_loop_defer": (1.0,), "drive_loop_gate": np.inf}
     err2, widths2 = solve((), drive_turn=0.5 * turn, **on)
@@ -780,19 +780,33 @@ def test_loop_defer_searches_the_narrow_priors_first(run: tuple[ScanLog, np.ndar
     np.testing.assert_allclose(err3, err0, atol=1e-9)
 
 
-def test_drive_turn_is_the_median_turn_of_the_drives(run: tuple[ScanLog, np.ndarray]) -> None:
-    """Steps over 0.1 m are drives; their yaw is wrapped; turns on the spot do not count."""
-    odo = np.array(
-        [
-            [0.0, 0.0, 0.05],  # a turning step on the spot
-            [1.0, 0.0, np.radians(80.0)],
-            [0.0, -0.5, -np.radians(90.0)],
-            [0.3, 0.3, 2 * np.pi - np.radians(10.0)],  # wraps to -10 degrees
-            [0.05, 0.0, 1.0],  # shorter than 0.1 m: not a drive
-        ]
-    )
-    assert drive_turn(odo) == pytest.approx(np.radians(80.0))
-    assert drive_turn(odo[[0, 4]]) == 0.0 and drive_turn(np.zeros((0, 3))) == 0.0
+def test_the_drive_turn_is_the_median_net_turn_between_stops(
+    run: tuple[ScanLog, np.ndarray],
+) -> None:
+    """Each drive's yaw between two stops (segments of more than one acquisition) is summed
+    over its steps and wrapped; turns on the spot do not count."""
+    spot = np.array([[0.0, 0.0, 0.05]] * 3)  # three turning steps on the spot
+    drives = [
+        [[1.0, 0.0, np.radians(80.0)]],
+        [[0.0, -0.5, -np.radians(90.0)]],
+        [[0.3, 0.3, 2 * np.pi - np.radians(10.0)]],  # wraps to -10 degrees
+    ]
+    odo = np.vstack([spot] + [np.vstack([d, spot]) for d in drives])
+    assert median_drive_turn(odo) == pytest.approx(np.radians(80.0))
+    # the same drives logged in 4 steps each, the turn in the first (review28 M1: a median
+    # over the steps gave 0)
+    split = [
+        np.vstack(
+            [[np.r_[np.asarray(d[0][:2]) / 4, d[0][2]]], [[*(np.asarray(d[0][:2]) / 4), 0.0]] * 3]
+        )
+        for d in drives
+    ]
+    odo4 = np.vstack([spot] + [np.vstack([d, spot]) for d in split])
+    assert len([1 for a, b in segment_stops(odo4) if b - a > 1]) == 4
+    assert median_drive_turn(odo4) == pytest.approx(np.radians(80.0))
+    # one stop, or no stop at all (every step drives): no drive between stops
+    assert median_drive_turn(spot) == 0.0 and median_drive_turn(np.zeros((0, 3))) == 0.0
+    assert median_drive_turn(np.vstack([d[0] for d in drives])) == 0.0
     res = StopGraphPathEstimator(ANTENNAS, StopGraphConfig(drive_turn=np.inf)).estimate(run[0])
     assert not res.drives_turn
 

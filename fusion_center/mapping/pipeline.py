@@ -654,7 +654,7 @@ class EchoSlamMapper:
         odo = np.array([np.zeros(3)] + [np.asarray(h[1], float) for h in hist[1:]])
         res = smoother.smooth(poses, odo, [h[2] for h in hist], [h[3] for h in hist], kinds, states)
         if min_pairs_step is not None:
-            min_pairs = scaled_min_pairs(min_pairs, odo, min_pairs_step, self.config.drive_reset)
+            min_pairs = self.support_min_pairs(min_pairs, min_pairs_step)
         the_map = build_map(
             smoothed_landmark_set(res, min_pairs=min_pairs, min_stops=min_stops),
             overlap_dist=overlap_dist,
@@ -664,6 +664,16 @@ class EchoSlamMapper:
         if self.maps_end_walls(end_walls):
             the_map = _with_end_walls(the_map, res, min_pairs)
         return the_map, np.column_stack([t, res.poses])
+
+    def support_min_pairs(self, min_pairs: int, min_pairs_step: float) -> int:
+        """Echo pairs a smoothed landmark needs (:meth:`smooth`): :func:`scaled_min_pairs` of
+        the recorded odometry increments, from the second acquisition on (the first has none;
+        a zero row in its place would count as a dwell and ask for one pair more where
+        ``min_pairs * min_pairs_step / step`` is whole: 5 instead of 4 at 6-degree steps)."""
+        odo = [np.asarray(h[1], float) for h in self._history[1:] if h[1] is not None]
+        return scaled_min_pairs(
+            min_pairs, np.reshape(odo, (-1, 3)), min_pairs_step, self.config.drive_reset
+        )
 
     def maps_end_walls(self, end_walls: bool | None = None) -> bool:
         """Whether :meth:`smooth` maps corridor end walls heard from one stop: ``end_walls``,

@@ -156,6 +156,21 @@ def test_the_support_a_smoothed_landmark_needs_follows_the_turning_step() -> Non
             scaled_min_pairs(bad, _turns(3.0), ref)
 
 
+def test_the_smoother_scales_the_support_by_the_recorded_increments_only() -> None:
+    """6-degree steps on the spot against the 3-degree reference: 4 pairs of 8; the first
+    acquisition has no increment and must not count as a dwell (review28 M2: it gave 5)."""
+    mapper = EchoSlamMapper(
+        ANTENNAS, fs=32.4e9, t0=0.0, bandwidth=8.9e9, config=MapperConfig(keep_history=True)
+    )
+    rng = np.random.default_rng(0)
+    for k in range(60):
+        odo = None if k == 0 else (0.0, 0.0, np.radians(6.0))
+        mapper.step(0.02 * k, rng.normal(0.0, 1e-3, (2, 512)).astype(np.float32), odo)
+    mapper.finish()
+    assert mapper.support_min_pairs(8, np.radians(3.0)) == 4
+    assert mapper.support_min_pairs(8, np.radians(1.5)) == 2
+
+
 def test_the_turning_step_leaves_dwells_out_and_counts_them_per_acquisition() -> None:
     from fusion_center.mapping.pipeline import turning_step
 

@@ -145,7 +145,8 @@ def _false_corners(mapped: np.ndarray, true: np.ndarray, gate: float = 0.5) -> i
 
 def _corner_errors(mapped: np.ndarray, corners: np.ndarray, reach: float = 0.5) -> list[float]:
     """For each true corner (k, 2), the distance (m) to the nearest ``mapped`` corner (m, 2)
-    when within ``reach``; corners with none that near are left out (not found)."""
+    when within ``reach``; corners with none that near are left out (not found). Also the
+    edges' errors against the mapped points."""
     if not len(mapped) or not len(corners):
         return []
     d = np.linalg.norm(np.asarray(corners)[:, None] - np.asarray(mapped)[None], axis=2).min(1)
@@ -251,12 +252,7 @@ def evaluate_map(
         out["corners"]["false_aligned"] = _false_corners(mc @ r + shift, corners)
         out["corners"]["aligned_m"] = _stats(_corner_errors(mc @ r + shift, corners))
     mp = np.array(doc["points"], float).reshape(-1, 2)
-    e_err = []
-    for p in edges:
-        if len(mp):
-            d = np.linalg.norm(mp - p, axis=1).min()
-            if d < 0.5:
-                e_err.append(float(d))
+    e_err = _corner_errors(mp, np.asarray(edges, float).reshape(-1, 2))  # nearest point
     out["edges"] = {"true": len(edges), "mapped_points": len(mp), **_stats(e_err)}
     per_obj = {}
     for oid, fp in g["objects"]:

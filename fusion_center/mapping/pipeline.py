@@ -708,7 +708,9 @@ class EchoSlamMapper:
             stop_gate=STATE_STOP_GATE if state else 0.0,
             # not measured on room_pillar's filter runs (measurement space): left off there
             keyframe_turn=STATE_KEYFRAME_TURN if state else 0.0,
-            sigma_floor=STATE_SIGMA_FLOOR if state else 0.0,
+            # never above the filter's own range noise (a valid SlamConfig with range_sigma
+            # under 1 cm must not fail on a floor the user never set)
+            sigma_floor=min(STATE_SIGMA_FLOOR, fc.range_sigma) if state else 0.0,
         )
 
     def map(self, min_hits: int = 8) -> SlamMap:

@@ -533,22 +533,15 @@ class LeastSquaresPathMapSmoother:
         if pair.size == 0:
             return lm
         groups, inv = np.unique(key, return_inverse=True)
-        count = np.bincount(inv)
-        start = np.r_[0, np.cumsum(count)[:-1]]
-
-        def group_median(v: FloatArray) -> FloatArray:
-            order = np.lexsort((v, inv))
-            return 0.5 * (v[order[start + (count - 1) // 2]] + v[order[start + count // 2]])
-
         # one range offset for both receivers (a shifted pose or landmark moves both ranges
         # alike): the group's median mean residual, each receiver within gate of it
-        offset = group_median(err.mean(1))
+        offset = group_median(err.mean(1), inv, groups.size)
         inlier = np.all(np.abs(err - offset[inv, None]) <= cfg.gate, 1)
         # and one direction of arrival: the receivers' difference, within 3 sigma (of a
         # difference of two ranges: sqrt(2) range_sigma) of the group's median
         diff = err[:, 0] - err[:, 1]
         diff_tol = 3.0 * np.sqrt(2.0) * cfg.range_sigma
-        inlier &= np.abs(diff - group_median(diff)[inv]) <= diff_tol
+        inlier &= np.abs(diff - group_median(diff, inv, groups.size)[inv]) <= diff_tol
         support = np.bincount(inv, inlier, minlength=groups.size)
         ok = inlier & (support[inv] >= cfg.stop_min_pairs)
         if not np.any(ok):

@@ -209,8 +209,8 @@ def test_coarse_turn_settings_of_the_smoother_are_for_state_space_only() -> None
     from fusion_center.mapping import SlamConfig
     from fusion_center.mapping.pipeline import STATE_KEYFRAME_TURN, STATE_SIGMA_FLOOR
 
-    def config(association: str):
-        slam = SlamConfig(association=association)
+    def config(association: str, **kw: float):
+        slam = SlamConfig(association=association, **kw)
         m = EchoSlamMapper(ANTENNAS, fs=20e9, t0=0.0, bandwidth=8e9, slam=slam)
         return m.smoother_config()
 
@@ -220,6 +220,8 @@ def test_coarse_turn_settings_of_the_smoother_are_for_state_space_only() -> None
     assert 0.0 < state.sigma_floor == STATE_SIGMA_FLOOR < state.range_sigma
     # not measured on room_pillar's filter runs (measurement space): unchanged there
     assert meas.keyframe_turn == 0.0 and meas.sigma_floor == 0.0
+    # a filter whose range noise is under the floor: the floor follows it (review28 L3)
+    assert config("state", range_sigma=0.008).sigma_floor == 0.008
 
 
 def test_the_state_space_smoother_keeps_the_arrays_own_orientation() -> None:

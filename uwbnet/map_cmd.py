@@ -293,9 +293,9 @@ def _map_by_stops(
     stats.drives_turn = res.drives_turn
     if res.drives_turn:
         log.info(
-            "%s: the robot turns with its drives: loop search deferred to narrow priors, "
-            "gated at %.1f sigma",
+            "%s: the robot turns with its drives: loop search deferred %s, gated at %.1f sigma",
             path,
+            list(config.drive_loop_defer),
             config.drive_loop_gate,
         )
     if res.bundle_unconverged and not res.bundle_dropped:
@@ -305,10 +305,11 @@ def _map_by_stops(
             res.bundle_unconverged,
         )
     if res.bundle_dropped:
+        shift = res.bundle_shift
+        finite = shift is not None and np.isfinite(shift)
+        moved = f"{shift:.1f} sigma (RMS)" if finite else "a non-finite shift"
         log.warning(
-            "%s: the bundle adjustment moved the stops by %.1f sigma (RMS); kept the refined poses",
-            path,
-            res.bundle_shift,
+            "%s: the bundle adjustment moved the stops by %s; kept the refined poses", path, moved
         )
     why = stops_unsuited(step, stats.stops, stats.stops_registered)
     if why is not None and auto:

@@ -111,8 +111,10 @@ class SmootherConfig:
         Pairs a stop's joint association needs (>= 1).
     sigma_floor : float
         With a value above 0, each landmark's range noise is the robust scale of its
-        associated pairs' residuals (1.4826 times their median absolute residual, taken
-        afresh before each round), at least this and at most ``range_sigma``, m; 0: every
+        associated pairs' residuals (1.4826 times the median of each pair's mean absolute
+        residual over the two receivers, taken afresh before each round: exact for one
+        Gaussian, about 10 % high when the receivers' residuals are independent, so on the
+        safe side), at least this and at most ``range_sigma``, m; 0: every
         landmark has ``range_sigma``. The same rule as the stop graph's bundle adjustment
         (:func:`~fusion_center.mapping.stop_bundle.adjust_stop_bundle`, which uses 1 cm):
         a wall echoes within millimetres (corridor_L_sparse at the true path: 2-3 mm robust

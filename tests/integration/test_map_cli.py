@@ -210,6 +210,8 @@ def test_issue_8_auto_takes_the_stop_graph_where_the_turns_do_not_close(
     assert stats["localise"] == "stops" and doc["localise"] == "stops"
     assert stats["stops"] == 12 and stats["stops_closed"] < 6
     assert stats["stops_registered"] >= 9 and doc["stops_registered"] == stats["stops_registered"]
+    # its drives keep the heading (world starts): the plain loop search
+    assert stats["drives_turn"] is False and doc["drives_turn"] is False
     # stops 1.3-1.9 m apart (median nearest 1.5 m): the walls are split at 1.5 times that
     assert 2.0 < doc["wall_gap"] == stats["wall_gap"] <= 2.5
     tr = stats["eval"]["trajectory"]
@@ -333,6 +335,9 @@ def test_map_takes_drive_start_odometry(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     stats = last_json(proc)
     assert stats["localise"] == "stops" and stats["stops"] == 6
+    # these 6 stops lie on straight lines, so most drives keep the heading and the median
+    # drive turn stays under StopGraphConfig.drive_turn (the trigger's routing is unit-tested)
+    assert json.loads(out.read_text())["drives_turn"] is stats["drives_turn"] is False
     ev = stats["eval"]
     assert ev["trajectory"]["rmse_m"] < 0.5 * ev["dead_reckoning"]["rmse_m"]
     assert ev["trajectory"]["rmse_m"] < 0.15

@@ -840,6 +840,7 @@ def test_loop_gate_refuses_a_match_outside_its_prior(run: tuple[ScanLog, np.ndar
             bundle_adjust=False,
             loop_window=(0.005, np.radians(0.1)),
             loop_gate=gate,
+            drive_turn=np.inf,  # loop_gate itself, never drive_loop_gate
         )
         est = StopGraphPathEstimator(ANTENNAS, cfg)
 

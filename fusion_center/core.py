@@ -38,7 +38,7 @@ class FusionCoreConfig:
         arrive in order, so one that reported a later frame skipped this one). Later frames
         wait with it (the tracker never goes back in time). 0: off, as before. For a node
         process that got its core late and publishes its batch after the frame's deadline
-        (docs/capacity.md, "Eighth round, hub side").
+        (issue 11, stop 20 notes).
     max_range : the distance (m) from a sensor up to which it is expected to detect a person;
         capped by the radar's window (half its longest bistatic range). 20 m (was 15): in a
         20 m hall a person near one end is seen only by the sensors at the other, 15-18 m

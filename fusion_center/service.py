@@ -5,7 +5,7 @@ through liveliness tokens, fetches ``node_info`` from the nodes' queryables, and
 ``tracks`` after every processed frame. One worker thread does the work: ``detections``,
 ``node_info`` and ``status`` samples wait in zenoh's own ring channels (no Python callback per
 message) and the worker takes all that arrived at each of its wake-ups, every ``poll_period``
-(docs/capacity.md, "Ninth round, hub side"); the rare control inputs (liveliness, replies of
+(issue 11, stop 21 notes; docs/capacity.md); the rare control inputs (liveliness, replies of
 ``node_info`` queries) come through callbacks that only enqueue. Within one wake-up the inputs
 are handled by kind (control, ``node_info``, ``status``, ``detections``), not in arrival order:
 an updated ``node_info`` may apply to detections that came up to ``poll_period`` before it.
@@ -199,7 +199,7 @@ class FusionService:
             for expr in exprs:
                 # zenoh's channel: its network thread queues the sample without Python's lock
                 # and the worker takes them in batches; a Python callback costs a thread
-                # wake-up, the lock and a queue per message (docs/capacity.md, ninth round)
+                # wake-up, the lock and a queue per message (issue 11, stop 21 notes)
                 sub = s.declare_subscriber(expr, zenoh.handlers.RingChannel(cfg.channel_capacity))
                 self._decl.append(sub)
                 self._channels.append((leaf, sub))

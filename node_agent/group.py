@@ -10,7 +10,7 @@ publisher thread for all their messages. The messages, counters and status of ev
 the same as with the agents' own threads.
 
 Measured in ``uwbnet scale --threads process`` on a 2-core machine shared with other work
-(docs/capacity.md, stop 17, item 17): it saved no CPU beyond the noise and lost more
+(issue 11, stop 17 notes): it saved no CPU beyond the noise and lost more
 acquisitions than a thread per agent, because one late acquisition delays every later slot of
 the process. It is kept as an option for such measurements; the default is a thread per agent.
 
@@ -19,7 +19,7 @@ agents that fall in one frame together, back to back, and the publisher sends th
 together: one wake-up of each thread per frame. A process woken from sleep pays for cold caches
 (in a plain loop on this machine an acquisition cost about 0.5 ms more after each sleep than
 back to back), so this cuts the CPU per acquisition of a simulated node process by about 40 %
-with 8 nodes per process (docs/capacity.md, sixth round). Before serving a batch the thread
+with 8 nodes per process (issue 11, stop 18 notes). Before serving a batch the thread
 lets the drivers prepare its acquisitions together (``acquire_ahead``: a simulated network
 computes them in one batch, bit for bit the same; seventh round).
 """
@@ -57,7 +57,7 @@ class SlotOrderGroup:
         order, when the earliest starts, and their messages are published together once the
         last of them has started: one wake-up of each thread per batch instead of one per
         slot (a simulated node process: a woken process pays for cold caches, about 0.2-0.5
-        ms per wake-up on this machine, docs/capacity.md, sixth round). For simulated
+        ms per wake-up on this machine, issue 11, stop 18 notes). For simulated
         drivers only, whose acquisition for slot time ``t`` may run before ``t`` (the scene
         at every slot time is known in advance); a radar acquires in real time. Every
         message carries its own slot's acquisition time, and none is published before its
@@ -65,13 +65,13 @@ class SlotOrderGroup:
     acquire_ahead : with ``batch_window`` > 0, the drivers of a batch prepare its
         acquisitions together before they are served (:meth:`RadarDriver.acquire_ahead`: a
         simulated network computes them in one batch: the same impulse responses, the
-        simulator at about a quarter less CPU, docs/capacity.md, seventh round). False: one
+        simulator at about a quarter less CPU, issue 11, stop 19 notes). False: one
         by one.
     catch_up : with ``batch_window`` > 0, a slot whose start passed less than this (s) ago
         when the thread looks for the next slots is still served, late, with its own
         acquisition time (``NodeAgent.catch_up``); 0 (default): such slots are skipped. A
         process that waited for a core otherwise loses the slots of all its nodes
-        (docs/capacity.md, seventh round).
+        (issue 11, stop 19 notes).
     pipeline : with ``batch_window`` > 0 and one batch per wake-up: 0 (default) runs an
         acquisition thread and a publisher thread, each woken once per batch. > 0 (s): one
         thread does both, pipelined: it wakes when the batch served last is due (its last
@@ -80,7 +80,7 @@ class SlotOrderGroup:
         frame's batch, served ahead of its slots), then sleeps until that batch is due. One wake-up
         per frame for the whole process instead of two, the same messages at the same
         times (none before its slot), each acquisition computed up to ``pipeline`` s before
-        its slot (docs/capacity.md, tenth round).
+        its slot (issue 11, stop 22 notes).
 
     ``start()`` and ``stop()`` are idempotent; ``stop`` joins the threads and stops the agents.
     """

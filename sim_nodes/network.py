@@ -168,7 +168,7 @@ class SimNetwork:
         (:meth:`MSequenceRadar.window_noise`: the same std and correlation, other
         realisations). None (default): the whole period, as a radar delivers it. A large
         building with a bounded ``people_range`` needs no sample beyond about twice that
-        range (``uwbnet scale --ir-window``, docs/capacity.md, tenth round).
+        range (``uwbnet scale --ir-window``, docs/capacity.md).
     """
 
     def __init__(

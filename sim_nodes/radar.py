@@ -407,8 +407,8 @@ class MSequenceRadar:
         Each generator draws the same uniforms as in :meth:`impulse_response`; the system
         response, the Box-Muller transform and the inverse FFT, elementwise or per row, run
         once over the batch (one numpy call per step instead of one per acquisition: with
-        8 acquisitions the simulator costs about a quarter less, docs/capacity.md, seventh
-        round).
+        8 acquisitions the simulator costs about a quarter less, issue 11, stop 19
+        notes).
 
         Parameters
         ----------
@@ -469,7 +469,7 @@ class MSequenceRadar:
         within the window, the same correlation up to the grid's period (lags beyond
         ``m - length`` alias, where the correlation is below 1e-4). For a radar window
         much shorter than the period (``uwbnet scale``'s range window, docs/capacity.md,
-        tenth round) this draws and transforms a fraction of the bins; the realisations
+        ``--ir-window``) this draws and transforms a fraction of the bins; the realisations
         differ from :meth:`impulse_response`'s.
         """
         m, scale = self.window_grid(length)

@@ -32,7 +32,7 @@ for which a published, measurement-based figure exists, next to that figure and 
 
 The channels are drawn without the per-channel decay randomisation (``decay_factor``) that
 every set of :mod:`uwbnet.nlos_loeo` uses, so the spread (std) of the delay spreads here is
-that of the bare classes, narrower than in the LOEO sets (see docs/localization.md).
+that of the bare classes, narrower than in the LOEO sets (issue 4, stop 22 notes).
 
 Material losses for the NLOS direct path (3GPP TR 38.901 Table 7.4.3-1, f in GHz; at the
 DW1000 channel 2 carrier, 3.99 GHz): standard multi-pane glass 2 + 0.2 f (2.8 dB), wood

@@ -50,7 +50,7 @@ class ScaleError(RuntimeError):
 #: Default radar window of a scale test, m of bistatic range. The simulator leaves people
 #: beyond PEOPLE_RANGE (20 m) of a node out, so no person's echo lies beyond about
 #: 2 x (20 + 0.8) m; 45 m keeps all of them and a margin, and cuts the noise drawn and the
-#: samples the node DSP processes from 4,095 to 1,051 (docs/capacity.md, tenth round: CPU per
+#: samples the node DSP processes from 4,095 to 1,051 (issue 11, stop 22 notes: CPU per
 #: acquisition all in 0.43 -> 0.34 ms at 64 nodes, eval figures unchanged).
 IR_WINDOW = 45.0
 
@@ -64,14 +64,14 @@ class ScaleConfig:
     hosts: int = 1
     duration: float = 10.0
     workers: int = 1
-    # 8 with the batch layout below (docs/capacity.md, sixth round: 0.57-0.61 ms of CPU per
+    # 8 with the batch layout below (issue 11, stop 18 notes: 0.57-0.61 ms of CPU per
     # acquisition at 32 nodes against 0.73 with 4 per process). With a thread per agent, 8 per
     # process missed slots on the GIL (1.8 % drops at 12 nodes, none with 4 per process).
     nodes_per_process: int = 8
     # "batch" (default): one thread per node process serves the slots of its nodes that start
     # within 10 ms together, each at its own time, and publishes none before its slot starts
-    # (node_agent.group, batch_window). Measured on the quiet machine (docs/capacity.md, sixth
-    # round): 48 nodes 0.00-0.10 % drops against 0.31 % for "agent", 0.58 ms of CPU per
+    # (node_agent.group, batch_window). Measured on the quiet machine (issue 11, stop 18
+    # notes): 48 nodes 0.00-0.10 % drops against 0.31 % for "agent", 0.58 ms of CPU per
     # acquisition against 0.79-0.96. "agent": every agent has its own worker and publisher
     # threads; "process": the agents of a node process share one acquisition thread, in slot
     # order, one slot per wake-up (lost 2-14x more than "agent" at load 8-9, stop 17).
@@ -82,7 +82,7 @@ class ScaleConfig:
     rt_priority: int = 0
     # the fusion center fuses frame f, complete or not, once a detection of frame f + frame_lag
     # arrives (FusionCoreConfig.frame_lag); the last node process of a frame then has only
-    # about frame_lag - 1 frames of slack (docs/capacity.md, seventh round)
+    # about frame_lag - 1 frames of slack (issue 11, stop 19 notes)
     frame_lag: int = 2
     # an incomplete frame waits up to this many frames more for a node whose detection may
     # still be in flight (FusionCoreConfig.frame_wait); 0: off
@@ -96,7 +96,7 @@ class ScaleConfig:
     # the node DSP's longest range, m (NodeDspConfig.max_range): the CFAR, background and range
     # filter run on the window up to it instead of the whole 175 m impulse response; None:
     # the whole window. The simulator leaves people beyond 20 m out (PEOPLE_RANGE), so no echo
-    # lies beyond about 2 x 21 m of bistatic range (docs/capacity.md, tenth round)
+    # lies beyond about 2 x 21 m of bistatic range (issue 11, stop 22 notes)
     max_range: float | None = None
     # the simulated radar window, m of bistatic range: the node processes' simulator delivers
     # (and node_info declares) only the impulse-response samples up to it, with the thermal

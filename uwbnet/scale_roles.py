@@ -229,7 +229,7 @@ def run_nodes(cfg: dict[str, Any], stop: threading.Event) -> None:
         if threads in ("process", "batch"):
             # one acquisition thread serves the agents in slot order (no GIL hand-offs
             # between K workers whose slots follow each other); "batch": one wake-up per frame
-            # for all of them, back to back (docs/capacity.md, sixth round)
+            # for all of them, back to back (issue 11, stop 18 notes)
             batch = threads == "batch"
             group = SlotOrderGroup(
                 agents,
@@ -291,7 +291,7 @@ def main(argv: list[str]) -> int:
     if cfg.get("rt_priority"):
         # Before any thread exists, so that zenoh's and ours inherit it: on a machine shared
         # with other work the TDMA slots otherwise wait 10-30 ms behind other processes' time
-        # slices (docs/capacity.md, stop 17).
+        # slices (issue 11, stop 17 notes).
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(cfg["rt_priority"]))
     with stop_on_signals() as stop:
         ROLES[role](cfg, stop)

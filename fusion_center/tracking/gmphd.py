@@ -152,7 +152,7 @@ class GmPhdConfig:
         stop 21): on the outside proxies the sensors' misses come in runs of a few tenths of
         a second (a person at a far wall, inside one sensor's blind zone): at 0.5 s the mean
         of the 12 proxies rose 87.7 -> 88.4 %, four hall seeds counted better, +100 the same,
-        +500 0.1 point worse, foyer3 unchanged (docs/integration.md). A lost track is reported
+        +500 0.1 point worse, foyer3 unchanged (issue 2, stop 21 notes). A lost track is reported
         up to this long after the person left. Timed on elapsed time (a clock stepping back
         does not prolong it). A label whose components were all pruned is not
         coasted: coasting those too (at their last state, predicted) lowered the mean count

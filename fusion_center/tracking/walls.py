@@ -87,7 +87,7 @@ class WallSightModel:
             return np.ones(p.shape[0])
         if self.compiled:
             # one loop over the (sight line, wall) pairs instead of a dozen (K, W) temporaries:
-            # at 48 sensors about 0.34 ms of the tracker's 2 ms per frame (docs/capacity.md)
+            # at 48 sensors about 0.34 ms of the tracker's 2 ms per frame (issue 11, stop 21)
             n = kernels.wall_crossings(o, p, self.start, self.end, _END_MARGIN)
             return self.factor ** n.astype(float)
         r = p - o  # (K, 2) sight lines

@@ -267,7 +267,7 @@ class GaussianCfarDetector:
         background is ``background`` (:meth:`~ExponentialBackgroundSubtractor.state_for`)
         and forgetting factor ``alpha``
         (:func:`node_agent.dsp.kernels.background_cfar_real`), at about 15-20 us less per
-        impulse response (docs/capacity.md, eighth round).
+        impulse response (issue 11, stop 20 notes).
 
         Parameters
         ----------

@@ -529,7 +529,7 @@ def background_cfar_real(
     :math:`y_k = h_k - b_{k-1}`, :math:`b_k = b_{k-1} + \\alpha y_k`, in float32 and in
     that order (the same bits as its numpy form), then :func:`cfar_detect_real` on
     :math:`y`. One compiled call instead of the subtractor's numpy calls and a second
-    kernel call: a node runs it once per impulse response (docs/capacity.md, eighth round).
+    kernel call: a node runs it once per impulse response (issue 11, stop 20 notes).
 
     Parameters
     ----------

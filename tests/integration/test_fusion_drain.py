@@ -1,5 +1,5 @@
 """The fusion center takes its inputs from zenoh's channels in batches (one wake-up every
-``poll_period``, docs/capacity.md "Ninth round, hub side"), over real zenoh sessions: every
+``poll_period``, docs/capacity.md; issue 11, stop 21 notes), over real zenoh sessions: every
 detection of a burst is fused and counted in the node's health, and bad messages are still
 counted and logged, not fatal."""
 

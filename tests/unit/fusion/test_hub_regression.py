@@ -1,6 +1,6 @@
 """Same detections in, same tracks out: the fusion center's decode, frame assembly and GM-PHD
-frame update give the tracks they gave before their CPU was cut (stop 20, docs/capacity.md,
-"Eighth round, hub side"), to float tolerance. The reference file was written by the code
+frame update give the tracks they gave before their CPU was cut (issue 11, stop 20
+notes), to float tolerance. The reference file was written by the code
 before those changes (``python -m tests.unit.fusion.test_hub_regression`` rewrites it)."""
 
 from __future__ import annotations

@@ -536,14 +536,19 @@ class LeastSquaresPathMapSmoother:
             return lm
         groups, inv = np.unique(key, return_inverse=True)
         # one range offset for both receivers (a shifted pose or landmark moves both ranges
-        # alike): the group's median mean residual, each receiver within gate of it
-        offset = group_median(err.mean(1), inv, groups.size)
-        inlier = np.all(np.abs(err - offset[inv, None]) <= cfg.gate, 1)
-        # and one direction of arrival: the receivers' difference, within 3 sigma (of a
-        # difference of two ranges: sqrt(2) range_sigma) of the group's median
+        # alike), each receiver within gate of it, and one direction of arrival: the
+        # receivers' difference within 3 sigma (of a difference of two ranges: sqrt(2)
+        # range_sigma) of the group's. The group's centre is the candidate with the most
+        # candidates of its group so compatible (ties: the smaller offset), a consensus; the
+        # median of the whole group (until stop 28) sat between a wall's echoes and a
+        # corner's at the same stop and took neither (corridor_L_sparse seed 1, stop 3)
+        mean = err.mean(1)
         diff = err[:, 0] - err[:, 1]
         diff_tol = 3.0 * np.sqrt(2.0) * cfg.range_sigma
-        inlier &= np.abs(diff - group_median(diff, inv, groups.size)[inv]) <= diff_tol
+        centre = self._consensus(inv, err, diff, diff_tol)  # one per group, in group order
+        offset, d0 = mean[centre], diff[centre]
+        inlier = np.all(np.abs(err - offset[inv, None]) <= cfg.gate, 1)
+        inlier &= np.abs(diff - d0[inv]) <= diff_tol
         support = np.bincount(inv, inlier, minlength=groups.size)
         ok = inlier & (support[inv] >= cfg.stop_min_pairs)
         if not np.any(ok):
@@ -556,6 +561,30 @@ class LeastSquaresPathMapSmoother:
         out = lm.copy()
         out[pair[order][first]] = landmark[order][first]
         return out
+
+    def _consensus(
+        self, group: IntArray, err: FloatArray, diff: FloatArray, diff_tol: float
+    ) -> IntArray:
+        """Index of each group's consensus candidate: the one whose mean residual and
+        receivers' difference the most candidates of its group match (both residuals within
+        ``gate`` of its mean residual, the difference within ``diff_tol`` of its), ties to
+        the smaller ``|difference|`` (the direction of arrival the landmark predicts: a
+        pose's offset moves both ranges alike, another reflector's echo turns it), then the
+        smaller ``|mean residual|`` (one per group, in group order). Pairwise within
+        groups, in blocks of rows (the candidates of one recording: hundreds)."""
+        gate = self.config.gate
+        mean = err.mean(1)
+        n = group.size
+        support = np.zeros(n, np.int64)
+        for a in range(0, n, 512):
+            b = min(a + 512, n)
+            same = group[a:b, None] == group[None, :]
+            fit = np.all(np.abs(err[None, :, :] - mean[a:b, None, None]) <= gate, -1)
+            fit &= np.abs(diff[None, :] - diff[a:b, None]) <= diff_tol
+            support[a:b] = np.sum(same & fit, 1)
+        order = np.lexsort((np.abs(mean), np.abs(diff), -support, group))
+        first = np.r_[True, group[order][1:] != group[order][:-1]]
+        return order[first]
 
     # --- the problem --------------------------------------------------------------------------
 

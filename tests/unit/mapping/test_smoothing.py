@@ -344,6 +344,26 @@ def test_the_joint_association_needs_one_direction_of_arrival() -> None:
     assert loose.tolist() == [0] * 7
 
 
+def test_the_joint_association_takes_the_consistent_set_not_the_median() -> None:
+    """A wall heard from a stop placed off it (three pairs 0.3 m short at both receivers),
+    and a corner's double reflections at that stop within stop_gate of the same wall (three
+    pairs, another direction of arrival: the receivers differ by 0.35 m). The median of all
+    six lay between the sets and took neither (corridor_L_sparse seed 1, stop 3); the
+    consensus takes the wall's set, whose receivers agree as the wall predicts."""
+    smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
+    wall = [[-0.30, -0.29], [-0.29, -0.30], [-0.31, -0.30]]
+    corner = [[0.05, 0.40], [0.06, 0.41], [0.04, 0.40]]
+    err = np.array(wall + corner)
+    lm, stop, pair = np.full(6, -1), np.zeros(6, np.int64), np.arange(6)
+    out = smoother._associate_by_stop(lm, stop, pair, np.zeros(6, np.int64), err)
+    assert out.tolist() == [0, 0, 0, -1, -1, -1]
+    # with a fourth corner pair the corner's set is the larger: it is taken, not the wall's
+    err4 = np.vstack([err, [[0.05, 0.39]]])
+    lm4, stop4, pair4 = np.full(7, -1), np.zeros(7, np.int64), np.arange(7)
+    out4 = smoother._associate_by_stop(lm4, stop4, pair4, np.zeros(7, np.int64), err4)
+    assert out4.tolist() == [-1, -1, -1, 0, 0, 0, 0]
+
+
 def test_the_joint_association_skips_a_landmark_the_stop_has_already() -> None:
     smoother = LeastSquaresPathMapSmoother(ANTENNAS, SmootherConfig(stop_gate=0.6))
     # three pairs 0.4 m off alike, and a fourth pair of the stop on landmark 0 already (its

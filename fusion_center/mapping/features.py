@@ -258,6 +258,7 @@ def corridor_end_walls(
     *,
     max_angle: float = np.radians(20.0),
     tolerance: float = 0.3,
+    across_corridor: bool = True,
 ) -> FloatArray:
     """End walls of corridors from landmarks heard from one stop only.
 
@@ -266,7 +267,13 @@ def corridor_end_walls(
     a wall's image ``2 f - tx`` with ``f`` the foot of the perpendicular, a corner's
     ``2 c - tx``), so a landmark heard from one stop is a reflection point ``f`` whose kind
     the echoes cannot tell. Between two mapped near-parallel walls (a corridor) it is taken
-    for the corridor's END WALL through ``f``, perpendicular to its bearing from the stop:
+    for the corridor's END WALL through ``f``, perpendicular to the corridor (the side walls'
+    mean direction; ``across_corridor`` False: to its bearing from the stop). Both corners
+    of a corridor's end lie on the end line as well as the end wall's foot, but only the
+    foot's bearing is the end's normal: a corner heard 3.3 m or more down a 2.4 m corridor is
+    within 20 degrees of its axis, and the line perpendicular to its bearing was an end wall
+    turned by up to 20 degrees (corridor_L_sparse with drive starts, seed 6: a wall matching
+    no face). It is taken when:
 
     * two mapped walls run within ``max_angle`` of the bearing and of each other, the stop
       lies between their lines and ``f`` too (on the stop's side of each);
@@ -297,6 +304,8 @@ def corridor_end_walls(
     tolerance : float
         Side walls may run this far past the end line, and a mapped wall this close to the
         reflection point makes it no new end wall, m.
+    across_corridor : bool
+        The end line is perpendicular to the corridor's axis (else to the bearing).
 
     Returns
     -------
@@ -346,13 +355,19 @@ def corridor_end_walls(
         j = int(right[np.argmin(np.abs(side_o[right]))])
         if abs(float(u[i] @ u[j])) < cos_max:
             continue
-        # end points: the end line (through f, normal b) meets the two side lines
+        # the end line's normal: the bearing, or the corridor's axis (the side walls' mean
+        # direction, pointing down the corridor like the bearing)
+        e = b
+        if across_corridor:
+            axis = u[i] + np.sign(float(u[i] @ u[j])) * u[j]
+            e = axis / np.linalg.norm(axis) * np.sign(float(axis @ b))
+        # end points: the end line (through f, normal e) meets the two side lines
         ends = []
         for s in (i, j):
-            den = float(u[s] @ b)
-            ends.append(p[s] + (float((f[k] - p[s]) @ b) / den) * u[s])
+            den = float(u[s] @ e)
+            ends.append(p[s] + (float((f[k] - p[s]) @ e) / den) * u[s])
         # neither side wall mapped past the end line
-        reach_past = np.sum((np.vstack([p[[i, j]], q[[i, j]]]) - f[k]) * b, 1)
+        reach_past = np.sum((np.vstack([p[[i, j]], q[[i, j]]]) - f[k]) * e, 1)
         if np.any(reach_past > tolerance):
             continue
         # one end per corridor and direction (the direction against a fixed side's tangent):

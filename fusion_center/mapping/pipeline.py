@@ -587,6 +587,7 @@ class EchoSlamMapper:
         min_pairs_step: float | None = np.radians(3.0),
         end_walls: bool | None = None,
         filter_mount: bool | None = None,
+        reflectors: bool = True,
     ) -> tuple[SlamMap, FloatArray] | None:
         """Map and path after joint least-squares smoothing of the whole run (graph SLAM,
         :class:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother`; beyond the
@@ -618,6 +619,16 @@ class EchoSlamMapper:
             None: with state-space association only (coarse turning steps; on room_pillar
             seed 0 mapped by the filter in measurement space, 3-degree steps, 27 landmarks
             came from one stop and one became a wall matching no face).
+        reflectors : bool
+            With ``end_walls``, also offer the end-wall rule the reflectors heard from one
+            stop by pairs no smoothed landmark explains, grouped by their image point
+            (:meth:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother.stop_reflectors`,
+            ``min_pairs`` each): the filter may have split a wall's echoes over young
+            landmarks or merged them with a corner's, so that none enters the smoothing
+            (docs/mapping.md). corridor_L_sparse spread over the corridor (span seeds 1-8):
+            the far end wall on seeds 1, 2, 7, outline 85.2 -> 91.9 % mean, the same path;
+            seed 1's far end is one more wall matching no face (placed from a last stop
+            0.6 m off along the corridor, its corners 0.5 m off until the path's rigid fit).
         filter_mount : bool or None
             Smooth with the heaviest particle's array orientation (``RbpfSlam.mount``),
             else with the array geometry's own (0). None: the particle's with
@@ -662,7 +673,10 @@ class EchoSlamMapper:
             extend=extend,
         )
         if self.maps_end_walls(end_walls):
-            the_map = _with_end_walls(the_map, res, min_pairs)
+            extra = None
+            if reflectors:
+                extra = smoother.stop_reflectors(res, [h[2] for h in hist], min_pairs=min_pairs)
+            the_map = _with_end_walls(the_map, res, min_pairs, extra)
         return the_map, np.column_stack([t, res.poses])
 
     def support_min_pairs(self, min_pairs: int, min_pairs_step: float) -> int:
@@ -719,14 +733,22 @@ class EchoSlamMapper:
         return build_map(self.filter.landmarks(min_hits=min_hits))
 
 
-def _with_end_walls(the_map: SlamMap, res: SmoothedPathMap, min_pairs: int) -> SlamMap:
+def _with_end_walls(
+    the_map: SlamMap,
+    res: SmoothedPathMap,
+    min_pairs: int,
+    extra: tuple[FloatArray, FloatArray, npt.NDArray[np.int64]] | None = None,
+) -> SlamMap:
     """``the_map`` with the corridor end walls of ``res``'s landmarks heard from one stop
     (:func:`~fusion_center.mapping.features.corridor_end_walls`) appended and listed in
     ``end_walls``. A wall's reflection point is the foot of the perpendicular from the
-    stop, a corner's or point's its position (the same image from one stop, Fig. 19)."""
+    stop, a corner's or point's its position (the same image from one stop, Fig. 19).
+    ``extra``: further reflection points, the positions they were heard from and their pairs
+    (:meth:`~fusion_center.mapping.smoothing.LeastSquaresPathMapSmoother.stop_reflectors`),
+    those with ``min_pairs`` taken as well."""
     one = np.flatnonzero((res.stops == 1) & (res.pairs >= min_pairs))
-    if one.size == 0 or res.observer.shape[0] != res.kinds.size:
-        return the_map
+    if res.observer.shape[0] != res.kinds.size:
+        one = one[:0]
     obs = res.observer[one]
     st = res.states[one]
     refl = st.copy()
@@ -734,6 +756,12 @@ def _with_end_walls(the_map: SlamMap, res: SmoothedPathMap, min_pairs: int) -> S
     if np.any(wall):
         nrm = np.stack([np.cos(st[wall, 0]), np.sin(st[wall, 0])], -1)
         refl[wall] = obs[wall] + (st[wall, 1] - np.sum(nrm * obs[wall], 1))[:, None] * nrm
+    if extra is not None:
+        more = np.asarray(extra[2]) >= min_pairs
+        refl = np.vstack([refl, np.asarray(extra[0], float).reshape(-1, 2)[more]])
+        obs = np.vstack([obs, np.asarray(extra[1], float).reshape(-1, 2)[more]])
+    if refl.shape[0] == 0:
+        return the_map
     ends = corridor_end_walls(the_map.walls, refl, obs)
     if len(ends) == 0:
         return the_map

@@ -39,7 +39,14 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from fusion_center.mapping.features import LandmarkSet
-from fusion_center.mapping.models import CORNER, POINT, WALL, predict, wall_tangent
+from fusion_center.mapping.models import (
+    CORNER,
+    POINT,
+    WALL,
+    invert_image,
+    predict,
+    wall_tangent,
+)
 from fusion_center.mapping.turn_closure import group_median
 
 FloatArray = npt.NDArray[np.float64]
@@ -188,6 +195,11 @@ class SmoothedPathMap:
     observer : ndarray, shape (l, 2)
         Mean robot position ``(x, y)`` of the acquisitions whose pairs are associated with
         each landmark (NaN for none), m: for a landmark heard from one stop, that stop.
+    association : ndarray of int, shape (m,)
+        Landmark of every echo pair after the final association (-1: none), in the order of
+        the acquisitions' pairs as given to :meth:`LeastSquaresPathMapSmoother.smooth`.
+    pair_stop : ndarray of int, shape (m,)
+        Stop (run of acquisitions between drives, counted from 0) of every echo pair.
     """
 
     poses: FloatArray
@@ -199,6 +211,8 @@ class SmoothedPathMap:
     cost_before: float
     cost_after: float
     observer: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    association: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    pair_stop: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -586,6 +600,82 @@ class LeastSquaresPathMapSmoother:
         first = np.r_[True, group[order][1:] != group[order][:-1]]
         return order[first]
 
+    def stop_reflectors(
+        self,
+        result: SmoothedPathMap,
+        pairs: list[npt.ArrayLike],
+        *,
+        min_pairs: int,
+        radius: float | None = None,
+    ) -> tuple[FloatArray, FloatArray, IntArray]:
+        """Reflectors heard from one stop by echo pairs that no landmark explains.
+
+        While the robot turns on the spot the image of the transmitter in a wall, ``2 f -
+        tx`` with ``f`` the foot of the perpendicular, and in a corner, ``2 c - tx``, stays
+        where it is (Fig. 19 of the CoLOR chapter), so a stop's echoes of one reflector
+        invert (:func:`~fusion_center.mapping.models.invert_image`, at the smoothed poses)
+        to one image point whatever the heading. The pairs the final association left
+        unexplained (``result.association`` -1) are grouped per stop by their image point
+        (:func:`image_clusters`, within ``radius``); a group of at least ``min_pairs`` is one
+        reflector with reflection point ``f = (T' + tx) / 2`` (``T'`` the group's median
+        image, ``tx`` the transmitter's mean position), a wall's foot of the perpendicular
+        or a corner's position. The filter may have spread such pairs over several young
+        landmarks, or merged them with another reflector's, so that no landmark of the
+        smoothing holds them (corridor_L_sparse's far end wall heard from its last stop,
+        docs/mapping.md); beyond the chapter.
+
+        Parameters
+        ----------
+        result : SmoothedPathMap
+            :meth:`smooth`'s result (its poses, ``association`` and ``pair_stop``).
+        pairs : list of array_like, shape (m_i, 2)
+            The echo pairs of every acquisition as given to :meth:`smooth`, m.
+        min_pairs : int
+            Pairs a reflector needs (>= 1).
+        radius : float, optional
+            Largest distance of a group's image points from the point it is grown from, m
+            (default ``SmootherConfig.gate``).
+
+        Returns
+        -------
+        (ndarray of shape (k, 2), ndarray of shape (k, 2), ndarray of int of shape (k,))
+            Reflection points, the mean robot position ``(x, y)`` they were heard from, and
+            their pairs, first-pose frame.
+        """
+        if min_pairs < 1:
+            raise ValueError(f"stop_reflectors: min_pairs must be >= 1, got {min_pairs}")
+        radius = self.config.gate if radius is None else float(radius)
+        zs = [np.asarray(p, float).reshape(-1, 2) for p in pairs]
+        z = np.concatenate([*zs, np.zeros((0, 2))])
+        acq = np.repeat(np.arange(len(zs)), [x.shape[0] for x in zs])
+        empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64))
+        if result.association.shape != (z.shape[0],) or len(zs) != result.poses.shape[0]:
+            raise ValueError("stop_reflectors: pairs do not match the smoothing's result")
+        free = np.flatnonzero(result.association < 0)
+        if free.size == 0:
+            return empty
+        poses = result.poses[acq[free]]
+        tx, _, yaw = self._array(poses)
+        body = invert_image(z[free] - self.bias, self.antennas[1:] - self.antennas[0])
+        c, s = np.cos(yaw), np.sin(yaw)
+        image = tx + np.stack(
+            [c * body[:, 0] - s * body[:, 1], s * body[:, 0] + c * body[:, 1]], -1
+        )
+        ok = np.all(np.isfinite(image), 1)
+        free, image, tx, poses = free[ok], image[ok], tx[ok], poses[ok]
+        label = image_clusters(image, result.pair_stop[free], radius=radius, min_size=min_pairs)
+        n = int(label.max(initial=-1)) + 1
+        if n == 0:
+            return empty
+        use = label >= 0
+        li = label[use]
+        count = np.bincount(li, minlength=n)
+        centre = np.column_stack([group_median(image[use, i], li, n) for i in range(2)])
+        mean_tx = np.column_stack([np.bincount(li, tx[use, i], minlength=n) for i in range(2)])
+        where = np.column_stack([np.bincount(li, poses[use, i], minlength=n) for i in range(2)])
+        refl = 0.5 * (centre + mean_tx / count[:, None])
+        return refl, where / count[:, None], count.astype(np.int64)
+
     # --- the problem --------------------------------------------------------------------------
 
     def smooth(
@@ -898,6 +988,8 @@ class LeastSquaresPathMapSmoother:
             cost_before=cost_before,
             cost_after=cost_after,
             observer=observer,
+            association=assoc.astype(np.int64),
+            pair_stop=stop_of[acq].astype(np.int64),
         )
 
 
@@ -927,3 +1019,54 @@ def smoothed_landmark_set(
         point_is_corner=result.kinds[pt] == CORNER,
         point_hits=result.pairs[pt].astype(float),
     )
+
+
+def image_clusters(
+    image: npt.ArrayLike, group: npt.ArrayLike, *, radius: float, min_size: int
+) -> IntArray:
+    """Greedy clusters of image points within each group (a stop).
+
+    In each group, the point with the most points within ``radius`` (itself included; ties:
+    the first) founds a cluster of those points, which leave the group; this repeats while
+    the largest such count is at least ``min_size``. The count is a density (the leader
+    clustering of Hartigan 1975, seeded at the densest point instead of the first); beyond
+    the chapter.
+
+    Parameters
+    ----------
+    image : array_like, shape (m, 2)
+        Points, m.
+    group : array_like of int, shape (m,)
+        Group of every point; clusters never span groups.
+    radius : float
+        Largest distance of a member from the cluster's founding point, m (> 0).
+    min_size : int
+        Members a cluster needs (>= 1).
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        Cluster of every point (0, 1, ... over all groups), -1 for none.
+    """
+    pts = np.asarray(image, float).reshape(-1, 2)
+    grp = np.asarray(group, np.int64).reshape(-1)
+    if grp.shape[0] != pts.shape[0]:
+        raise ValueError("image_clusters: image and group need one row each")
+    if not radius > 0.0 or min_size < 1:
+        raise ValueError("image_clusters: radius must be > 0 and min_size >= 1")
+    label = np.full(pts.shape[0], -1, np.int64)
+    n = 0
+    for g in np.unique(grp):  # stops: a handful
+        idx = np.flatnonzero(grp == g)
+        near = np.linalg.norm(pts[idx, None] - pts[None, idx], axis=-1) <= radius
+        left = np.ones(idx.size, bool)
+        while True:  # clusters of one stop: a handful
+            count = (near & left[None, :]).sum(1) * left
+            k = int(np.argmax(count))
+            if count[k] < min_size:
+                break
+            members = near[k] & left
+            label[idx[members]] = n
+            left &= ~members
+            n += 1
+    return label

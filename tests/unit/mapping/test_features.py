@@ -303,13 +303,30 @@ def test_a_single_stop_landmark_down_a_corridor_is_its_end_wall() -> None:
     ends = corridor_end_walls(_SIDES, [[8.0, 1.2]], [[3.0, 1.2]])
     assert ends.shape == (1, 4)
     np.testing.assert_allclose(_sorted_ends(ends), [[8, 0], [8, 2.4]], atol=1e-12)
-    # a bearing 10 degrees off the corridor: the end line is perpendicular to the bearing
+    # a bearing 10 degrees off the corridor: the end line is perpendicular to the corridor,
+    # or with across_corridor False to the bearing
     f = np.array([3.0, 1.2]) + 4.0 * np.array([np.cos(0.1745), np.sin(0.1745)])
     ends = corridor_end_walls(_SIDES, [f], [[3.0, 1.2]])
+    np.testing.assert_allclose(_sorted_ends(ends), [[f[0], 0], [f[0], 2.4]], atol=1e-9)
+    ends = corridor_end_walls(_SIDES, [f], [[3.0, 1.2]], across_corridor=False)
     b = (f - [3.0, 1.2]) / 4.0
     d = ends.reshape(2, 2) - f
     np.testing.assert_allclose(d @ b, 0.0, atol=1e-9)
     np.testing.assert_allclose(np.sort(ends.reshape(2, 2)[:, 1]), [0.0, 2.4], atol=1e-9)
+
+
+def test_an_end_heard_at_its_corner_lies_across_the_corridor() -> None:
+    # the end x = 8 of the corridor 0 < y < 2.4 heard from (3, 1.2) at its corner (8, 0),
+    # 13.5 degrees off the axis: the end is x = 8 whichever of its points was heard, not the
+    # line perpendicular to the corner's bearing (turned by 13.5 degrees)
+    for corner in ([8.0, 0.0], [8.0, 2.4]):
+        # the corner itself is on both walls' lines: pull it in a little (the side walls'
+        # own echoes place them, not the corner's)
+        f = np.add(corner, (0.0, 0.05 if corner[1] == 0.0 else -0.05))
+        ends = corridor_end_walls(_SIDES, [f], [[3.0, 1.2]])
+        np.testing.assert_allclose(_sorted_ends(ends), [[8, 0], [8, 2.4]], atol=1e-9)
+        turned = corridor_end_walls(_SIDES, [f], [[3.0, 1.2]], across_corridor=False)
+        assert np.ptp(turned.reshape(2, 2)[:, 0]) > 0.4
 
 
 def test_of_two_landmarks_down_one_corridor_the_nearest_is_the_end() -> None:

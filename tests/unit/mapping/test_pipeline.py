@@ -275,6 +275,24 @@ def test_a_landmark_heard_from_one_stop_down_a_corridor_becomes_its_end_wall() -
         assert _with_end_walls(sides, res, min_pairs=2) is sides
 
 
+def test_a_reflector_no_landmark_holds_becomes_an_end_wall_too() -> None:
+    # the end x = 8 heard from (3, 1.2) by pairs that no smoothed landmark holds
+    # (SmoothedPathMap.association -1), grouped by their image point: stop_reflectors
+    sides = SlamMap(walls=np.array([[0, 0, 4, 0], [4, 2.4, 0, 2.4]], float))
+    res = _one_stop_result([WALL], [[np.pi / 2, 2.4]], [9], [3], [[2.0, 1.2]])
+    extra = (np.array([[8.0, 1.3]]), np.array([[3.0, 1.2]]), np.array([3]))
+    m = _with_end_walls(sides, res, min_pairs=2, extra=extra)
+    np.testing.assert_array_equal(m.end_walls, [2])
+    np.testing.assert_allclose(_sorted(m.walls[2]), [[8.0, 0.0], [8.0, 2.4]], atol=1e-9)
+    # fewer pairs than min_pairs: not offered
+    few = (extra[0], extra[1], np.array([1]))
+    assert _with_end_walls(sides, res, min_pairs=2, extra=few) is sides
+
+
+def _sorted(seg: np.ndarray) -> np.ndarray:
+    return np.sort(np.asarray(seg).reshape(-1, 2), axis=0)
+
+
 def test_end_walls_are_mapped_with_state_space_association_only_by_default() -> None:
     from fusion_center.mapping import SlamConfig
 

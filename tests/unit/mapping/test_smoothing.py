@@ -9,6 +9,7 @@ from fusion_center.mapping.models import CORNER, POINT, WALL
 from fusion_center.mapping.smoothing import (
     LeastSquaresPathMapSmoother,
     SmootherConfig,
+    image_clusters,
     merge_duplicates,
     smoothed_landmark_set,
 )
@@ -462,3 +463,53 @@ def test_coarse_turns_get_their_in_turn_heading_from_the_echoes(seed) -> None:
     # a key pose every step and each wall's own (millimetre) residual scale: the echoes'
     # bearings carry the heading from one wall's window to the next
     assert first_stop_heading_rms(keyframe_turn=np.radians(10.0), sigma_floor=0.01) < 0.5
+
+
+def test_image_clusters_grow_from_the_densest_point_within_each_stop() -> None:
+    rng = np.random.default_rng(5)
+    a = np.add([2.0, 5.0], rng.normal(0.0, 0.03, (4, 2)))  # 4 images of one reflector
+    b = np.add([3.0, 5.0], rng.normal(0.0, 0.03, (2, 2)))  # 2 of another, 1 m away
+    lone = [[2.0, 4.6]]  # 0.4 m from the first: not within 0.25 m
+    other = np.add([2.0, 5.0], rng.normal(0.0, 0.03, (3, 2)))  # the first's place, another stop
+    pts = np.vstack([a, b, lone, other])
+    grp = np.r_[[0] * 7, [1] * 3]
+    lab = image_clusters(pts, grp, radius=0.25, min_size=2)
+    assert len(set(lab[:4])) == 1 and lab[0] >= 0
+    assert len(set(lab[4:6])) == 1 and lab[4] >= 0 and lab[4] != lab[0]
+    assert lab[6] == -1
+    assert len(set(lab[7:])) == 1 and lab[7] not in (lab[0], lab[4])
+    # min_size 3: the pair of the second reflector is no cluster
+    lab = image_clusters(pts, grp, radius=0.25, min_size=3)
+    assert np.all(lab[4:7] == -1) and lab[0] >= 0 and lab[7] >= 0
+    with pytest.raises(ValueError, match="radius"):
+        image_clusters(pts, grp, radius=0.0, min_size=2)
+    with pytest.raises(ValueError, match="one row each"):
+        image_clusters(pts, grp[:3], radius=0.25, min_size=2)
+
+
+def test_echoes_no_landmark_explains_are_one_reflector_per_stop() -> None:
+    _, odo, pairs, kinds, truth, init_poses, init_lm = _problem()
+    # the wall y = 0 (the first) is not among the landmarks: its echoes stay unexplained
+    cfg = SmootherConfig(range_sigma=0.02, slip_translation=0.01, slip_rotation=0.01, max_nfev=50)
+    sm = LeastSquaresPathMapSmoother(ANTENNAS, cfg)
+    res = sm.smooth(init_poses, odo, pairs, None, kinds[1:], init_lm[1:])
+    refl, obs, count = sm.stop_reflectors(res, pairs, min_pairs=3)
+    # the three stops along y = 0 hear it at the foot of their perpendicular, (x_stop, 0)
+    for stop in STOPS[:3]:
+        k = np.flatnonzero(np.linalg.norm(obs - stop, axis=1) < 0.1)
+        near = k[np.abs(refl[k, 1]) < 0.1]
+        assert near.size == 1
+        np.testing.assert_allclose(refl[near[0]], [stop[0], 0.0], atol=0.1)
+        assert count[near[0]] >= 3
+    # with every landmark there, only the echoes of the corner whose initial guess lies
+    # beyond the gate stay unexplained (no pair associated): it is found from every stop
+    res = sm.smooth(init_poses, odo, pairs, None, kinds, init_lm)
+    lost = np.flatnonzero(res.pairs == 0)
+    refl, obs, count = sm.stop_reflectors(res, pairs, min_pairs=3)
+    assert lost.size == 1 and kinds[lost[0]] == CORNER
+    assert len(refl) == len(STOPS) and np.all(count >= 3)
+    np.testing.assert_allclose(refl, np.broadcast_to(truth[lost[0]], refl.shape), atol=0.1)
+    with pytest.raises(ValueError, match="do not match"):
+        sm.stop_reflectors(res, pairs[1:], min_pairs=3)
+    with pytest.raises(ValueError, match="min_pairs"):
+        sm.stop_reflectors(res, pairs, min_pairs=0)

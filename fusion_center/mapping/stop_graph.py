@@ -396,6 +396,24 @@ class StopGraphConfig:
         and 3.0): room_pillar seed 0 / 1 with drive starts 0.727 / 0.134 -> 0.082 / 0.125 m;
         on the world-start recordings the pair costs seed 0 0.010 m (a 0.3 degree turn of
         the whole map), so they keep the plain search (docs/mapping.md, stop 27).
+    search_shear : bool
+        The registration's coarse grid follows the prior's regression of ``(x, y)`` on the
+        yaw: at a yaw offset ``dy`` from the prior its xy centre moves by
+        ``P_xy,yaw / P_yaw,yaw * dy`` and its xy half-width is 3 sigma of the conditional
+        (Schur complement) spread, capped at ``window``. A loop across a drive whose heading
+        is unsure has its xy on a ridge along the yaw (a far stop swings with the heading);
+        a box capped at ``window`` cuts that ridge. Default False: on every search it let
+        wrong 2-3-reflector matches into room_pillar seed 1 with drive starts (graph 0.125
+        -> 0.923 m); ``loop_shear`` uses it only where the box was capped (our addition).
+    loop_shear, drive_loop_shear : bool
+        After the last loop level, search once more, with ``search_shear``, every loop
+        candidate that is not yet a closure and whose prior still reaches beyond
+        ``window`` at 3 sigma (the box search was capped): a stretch the closures could
+        not tighten, hung on a drive whose heading is off. ``drive_loop_shear`` (default
+        True) for a recording whose drives turn (``drive_turn``), ``loop_shear`` (default
+        False) otherwise. The held-out L hall with drive starts: a 23 degree heading error
+        on the drive to stop 25 left stops 25-29 2 m off; graph 0.836 -> 0.073 m
+        (docs/mapping.md, stop 28).
     closure_min_links : int
         ``TurnClosureConfig.min_links`` of the stops' turn closures (reflectors seen at both
         ends of the turn).
@@ -487,6 +505,9 @@ class StopGraphConfig:
     drive_turn: float = float(np.radians(20.0))
     drive_loop_defer: tuple[float, ...] = (1.0,)
     drive_loop_gate: float = 3.0
+    search_shear: bool = False
+    loop_shear: bool = False
+    drive_loop_shear: bool = True
     closure_min_links: int = 1
     refine_turns: bool = True
     pair_count_weight: bool = True
@@ -867,6 +888,15 @@ class ReflectorRegistration:
         # refinement's normal equations)
         info = np.linalg.solve(prior_cov + np.diag([1e-6, 1e-6, 1e-8]), np.eye(3))
         sd = np.sqrt(np.diag(prior_cov))
+        # the grid's xy follows the prior's regression on the yaw (its conditional mean
+        # given the yaw) and spans the conditional spread: where the yaw is uncertain the
+        # xy of a far stop moves with it, and a box capped at ``window`` cuts that ridge
+        shear = np.zeros(2)
+        if cfg.search_shear and sd[2] > 0.0:
+            shear = prior_cov[:2, 2] / prior_cov[2, 2]
+            sd = np.sqrt(
+                np.r_[np.clip(np.diag(prior_cov)[:2] - shear * prior_cov[:2, 2], 0.0, None), sd[2]]
+            )
         half_xy = np.clip(3 * sd[:2], cfg.min_window[0], cfg.window[0])
         half_yaw = float(np.clip(3 * sd[2], cfg.min_window[1], cfg.window[1]))
 
@@ -892,6 +922,7 @@ class ReflectorRegistration:
         c_sigma = float(np.hypot(cfg.coarse_sigma, cs - cfg.coarse_step[0]))
         c_heading = max(cy - cfg.coarse_step[1], 0.0)
         coarse = grid(prior, [axis(half_xy[0], cs), axis(half_xy[1], cs), axis(half_yaw, cy)])
+        coarse[:, :2] += (coarse[:, 2:] - prior[2]) * shear
         score = np.concatenate(
             [
                 self._scores(chunk, a, b, c_sigma, c_heading)[0]
@@ -1586,6 +1617,8 @@ class StopGraphPathEstimator:
         init = np.zeros((n, 3))
         regs: list[tuple[int, int, Registration]] = []
         tried: set[tuple[int, int]] = set()
+        tried_sheared: set[tuple[int, int]] = set()
+        accepted: set[tuple[int, int]] = set()
         for i in range(n - 1):
             z, cov = self.odometry_edge(log, stops[i], stops[i + 1])
             graph.add(GraphEdge(i=i, j=i + 1, z=z, cov=cov, robust=False))
@@ -1610,12 +1643,15 @@ class StopGraphPathEstimator:
         drives_turn = (
             median_drive_turn(log.odometry, cfg.drive_reset, cfg.move_step) > cfg.drive_turn
         )
-        defer, loop_gate = (
-            (cfg.drive_loop_defer, cfg.drive_loop_gate)
+        defer, loop_gate, shear = (
+            (cfg.drive_loop_defer, cfg.drive_loop_gate, cfg.drive_loop_shear)
             if drives_turn
-            else (cfg.loop_defer, cfg.loop_gate)
+            else (cfg.loop_defer, cfg.loop_gate, cfg.loop_shear)
         )
-        levels = [*defer, 0.0]
+        # the last level (-1) searches again, along the prior's yaw ridge, the candidates
+        # whose prior the box search had to cap at ``window``
+        levels = [*defer, 0.0, *((-1.0,) if shear else ())]
+        sheared = ReflectorRegistration(replace(cfg, search_shear=True), self.point_bias)
         level, rounds = 0, 0
         while cand.size > 2 and level < len(levels):
             added = 0
@@ -1628,14 +1664,22 @@ class StopGraphPathEstimator:
                 later = cand[cand >= i + 2]
                 d = np.hypot(*(poses[later, :2] - poses[i, :2]).T)
                 for j in later[d < cfg.loop_distance].tolist():
-                    if (i, j) in tried:
+                    if (i, j) in tried and (gate >= 0.0 or (i, j) in tried_sheared):
                         continue
                     prior = relative_pose(poses[i], poses[j])
                     cov = loop_cov + relative_covariance(poses, joint, i, j)
                     if gate > 0.0 and _beyond_window(cov, cfg.window, gate):
                         continue
+                    search = self.registration
+                    if gate < 0.0:
+                        if (i, j) in accepted or not _beyond_window(cov, cfg.window, 3.0):
+                            if (i, j) in tried:
+                                continue
+                        else:
+                            search = sheared
+                            tried_sheared.add((i, j))
                     tried.add((i, j))
-                    reg = self.registration.register_both(stops[i], stops[j], prior, cov)
+                    reg = search.register_both(stops[i], stops[j], prior, cov)
                     if reg.accepted and _innovation(reg, prior, cov) > loop_gate:
                         reg = _replace_reason(reg, "outside the prior")
                     regs.append((i, j, reg))
@@ -1643,6 +1687,7 @@ class StopGraphPathEstimator:
                         graph.add(
                             GraphEdge(i=i, j=j, z=reg.pose, cov=reg.cov, robust=True, kind="loop")
                         )
+                        accepted.add((i, j))
                         added += 1
             rounds += 1
             if added > 0:

@@ -867,3 +867,75 @@ def test_loop_gate_refuses_a_match_outside_its_prior(run: tuple[ScanLog, np.ndar
     assert reg0[0].accepted and np.hypot(*(poses0[3, :2] - without[3, :2])) > 0.03
     assert not reg1[0].accepted and reg1[0].reason == "outside the prior"
     np.testing.assert_allclose(poses1, without, atol=1e-9)
+
+
+def test_search_shear_follows_the_prior_along_its_yaw() -> None:
+    """A prior whose yaw is 20 degrees off, with the y of the far stop moving 3 m per radian
+    of it (a loop across a drive whose heading is unsure): the truth lies 1.05 m off in y,
+    beyond ``window``'s 0.8 m, but on the prior's ridge (1.7 sigma). The box search misses
+    it; the grid sheared along the prior's regression of xy on the yaw finds it."""
+    rng = np.random.default_rng(4)
+    points = rng.uniform([0.0, 0.0], [6.0, 5.0], (8, 2))
+    pa, pb = np.array([2.0, 2.0, 0.3]), np.array([4.5, 2.6, 0.6])
+    a, b = _scatterers(points, pa), _scatterers(points, pb)
+    b = replace(b, images=b.images + rng.normal(0.0, 0.01, b.images.shape))
+    truth = relative_pose(pa, pb)
+    ridge = np.array([0.0, 3.0, 1.0])  # (m/rad, m/rad, 1)
+    jac = np.eye(3)
+    jac[:2, 2] = ridge[:2]
+    cov = jac @ np.diag([0.08**2, 0.08**2, np.radians(12.0) ** 2]) @ jac.T
+    prior = truth - ridge * np.radians(20.0)
+    box = ReflectorRegistration(StopGraphConfig()).register_both(a, b, prior, cov)
+    assert not box.accepted or np.hypot(*(box.pose - truth)[:2]) > 0.3
+    reg = ReflectorRegistration(StopGraphConfig(search_shear=True)).register_both(a, b, prior, cov)
+    assert reg.accepted, reg.reason
+    err = reg.pose - truth
+    assert np.hypot(err[0], err[1]) < 0.02 and abs(np.degrees(err[2])) < 0.3
+
+
+def test_loop_shear_searches_the_capped_candidates_again(
+    run: tuple[ScanLog, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every registration refused, so the graph is held by odometry alone. With
+    ``loop_shear`` the last level searches each loop candidate again with the sheared grid
+    when its prior reaches beyond ``window`` at 3 sigma (a 0.5 m / 15 degree
+    ``loop_window``), once; never when its prior is narrow (5 mm / 0.1 degree over exact
+    consecutive matches), nor without ``loop_shear``."""
+    log, poses = run
+    segs = segment_stops(log.odometry)
+    truth = np.array([poses[s] for s, _ in segs])
+    index = {s: k for k, (s, _) in enumerate(segs)}
+
+    def calls(loop_window: tuple[float, float], shear: bool) -> list[tuple[int, int, bool]]:
+        seen: list[tuple[int, int, bool]] = []
+
+        def fake(
+            self: ReflectorRegistration, a: StopScan, b: StopScan, prior: Any, cov: Any
+        ) -> Registration:
+            i, j = index[a.start], index[b.start]
+            seen.append((i, j, self.config.search_shear))
+            if j == i + 1 and loop_window[0] < 0.1:
+                z = relative_pose(truth[i], truth[j])
+                tight = np.diag([1e-6, 1e-6, 1e-8])
+                return Registration(pose=z, cov=tight, explained=1.0, matched=5, accepted=True)
+            return Registration(
+                pose=prior, cov=cov, explained=0.0, matched=0, accepted=False, reason="x"
+            )
+
+        monkeypatch.setattr(ReflectorRegistration, "register_both", fake)
+        cfg = StopGraphConfig(
+            refine_turns=False,
+            bundle_adjust=False,
+            loop_window=(loop_window[0], np.radians(loop_window[1])),
+            drive_turn=np.inf,
+            loop_shear=shear,
+        )
+        StopGraphPathEstimator(ANTENNAS, cfg).estimate(log)
+        return [c for c in seen if c[1] > c[0] + 1]
+
+    wide = calls((0.5, 15.0), True)
+    box = [(i, j) for i, j, s in wide if not s]
+    assert box and sorted((i, j) for i, j, s in wide if s) == sorted(box)
+    assert not any(s for _, _, s in calls((0.5, 15.0), False))
+    narrow = calls((0.005, 0.1), True)
+    assert narrow and not any(s for _, _, s in narrow)

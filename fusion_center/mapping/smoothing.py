@@ -631,7 +631,8 @@ class LeastSquaresPathMapSmoother:
         pairs : list of array_like, shape (m_i, 2)
             The echo pairs of every acquisition as given to :meth:`smooth`, m.
         min_pairs : int
-            Pairs a reflector needs (>= 1).
+            Pairs a reflector needs (>= 1), from at least ``max(2, min_pairs)``
+            acquisitions.
         radius : float, optional
             Largest distance of a group's image points from the point it is grown from, m
             (default ``SmootherConfig.gate``).
@@ -674,7 +675,11 @@ class LeastSquaresPathMapSmoother:
         mean_tx = np.column_stack([np.bincount(li, tx[use, i], minlength=n) for i in range(2)])
         where = np.column_stack([np.bincount(li, poses[use, i], minlength=n) for i in range(2)])
         refl = 0.5 * (centre + mean_tx / count[:, None])
-        return refl, where / count[:, None], count.astype(np.int64)
+        # heard in at least two acquisitions (and min_pairs): at coarse steps min_pairs scales
+        # down to 1, and one stray pair is no reflector (review28b M2)
+        seen = np.unique(li * len(zs) + acq[free][use]) // len(zs)
+        good = np.bincount(seen, minlength=n) >= max(2, min_pairs)
+        return refl[good], (where / count[:, None])[good], count[good].astype(np.int64)
 
     # --- the problem --------------------------------------------------------------------------
 

@@ -509,6 +509,14 @@ def test_echoes_no_landmark_explains_are_one_reflector_per_stop() -> None:
     assert lost.size == 1 and kinds[lost[0]] == CORNER
     assert len(refl) == len(STOPS) and np.all(count >= 3)
     np.testing.assert_allclose(refl, np.broadcast_to(truth[lost[0]], refl.shape), atol=0.1)
+    # one stray pair (an image no other pair shares) is no reflector, even at min_pairs 1
+    # (coarse turning steps scale min_pairs down to 1; review28b M2)
+    stray = [np.asarray(p, float).reshape(-1, 2) for p in pairs]
+    stray[10] = np.vstack([stray[10], [7.31, 7.52]])
+    res_s = sm.smooth(init_poses, odo, stray, None, kinds, init_lm)
+    assert res_s.association[sum(len(p) for p in stray[:11]) - 1] == -1
+    refl_s, _, count_s = sm.stop_reflectors(res_s, stray, min_pairs=1)
+    assert np.all(count_s >= 2) and len(refl_s) == len(STOPS)
     with pytest.raises(ValueError, match="do not match"):
         sm.stop_reflectors(res, pairs[1:], min_pairs=3)
     with pytest.raises(ValueError, match="min_pairs"):

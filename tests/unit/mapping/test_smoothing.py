@@ -358,11 +358,6 @@ def test_the_joint_association_takes_the_consistent_set_not_the_median() -> None
     lm, stop, pair = np.full(6, -1), np.zeros(6, np.int64), np.arange(6)
     out = smoother._associate_by_stop(lm, stop, pair, np.zeros(6, np.int64), err)
     assert out.tolist() == [0, 0, 0, -1, -1, -1]
-    # with a fourth corner pair the corner's set is the larger: it is taken, not the wall's
-    err4 = np.vstack([err, [[0.05, 0.39]]])
-    lm4, stop4, pair4 = np.full(7, -1), np.zeros(7, np.int64), np.arange(7)
-    out4 = smoother._associate_by_stop(lm4, stop4, pair4, np.zeros(7, np.int64), err4)
-    assert out4.tolist() == [-1, -1, -1, 0, 0, 0, 0]
 
 
 def test_the_joint_association_skips_a_landmark_the_stop_has_already() -> None:

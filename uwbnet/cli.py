@@ -743,7 +743,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("mpd", "threshold", "adaptive", "peak", "ml"),
         default="adaptive",
         help="ToA estimator: maximum probability of detection (eq. 4-5), fixed or adaptive "
-        "threshold, strongest peak",
+        "threshold, strongest peak, or ml (multipath fit, docs/localization.md)",
     )
     r.set_defaults(func=cmd_ranging)
 

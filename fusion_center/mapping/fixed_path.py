@@ -72,6 +72,7 @@ from fusion_center.mapping.models import (
     WALL,
     invert_image,
     invert_point,
+    rotate,
     wall_tangent,
 )
 from fusion_center.mapping.smoothing import (
@@ -391,11 +392,6 @@ def _world_array(poses: FloatArray, antennas: FloatArray) -> tuple[FloatArray, F
     return ant[:, 0], ant[:, 1:]
 
 
-def _rotate(v: FloatArray, yaw: FloatArray) -> FloatArray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], -1)
-
-
 def _group_mean(x: FloatArray, g: IntArray, n: int, trim: float) -> tuple[FloatArray, IntArray]:
     """Per-group mean of points ``x`` (m, 2) without NaN rows, then again without the points
     farther than ``trim`` from it (a track that switched echoes for a few acquisitions)."""
@@ -635,8 +631,8 @@ class _FixedPathMapper:
         tx, _ = _world_array(self.poses, self.ant)
         yaw = self.poses[self.acq, 2]
         tx_p = tx[self.acq]
-        img = tx_p + _rotate(invert_image(self.z, self.rx_body), yaw)
-        pt = tx_p + _rotate(invert_point(self.z, self.rx_body), yaw)
+        img = tx_p + rotate(invert_image(self.z, self.rx_body), yaw)
+        pt = tx_p + rotate(invert_point(self.z, self.rx_body), yaw)
         g = self.gid
         ng = self.n_groups
         img_g, cnt = _group_mean(img, g, ng, 2 * cfg.point_gate)
@@ -856,9 +852,9 @@ class _FixedPathMapper:
         ctr = self.centre[self.stop_of]
         # the transmitter rotates about the stop's centre; the robot origin moves with it
         tx, _ = _world_array(p, self.ant)
-        new_tx = ctr + _rotate(tx - ctr, c[:, 2]) + c[:, :2]
+        new_tx = ctr + rotate(tx - ctr, c[:, 2]) + c[:, :2]
         yaw = p[:, 2] + c[:, 2]
-        origin = new_tx - _rotate(np.broadcast_to(self.ant[0], (p.shape[0], 2)), yaw)
+        origin = new_tx - rotate(np.broadcast_to(self.ant[0], (p.shape[0], 2)), yaw)
         return np.column_stack([origin, yaw])
 
     def refine(

@@ -120,6 +120,13 @@ def predict(
     return nj, jac, d0 / np.maximum(np.linalg.norm(d0, axis=-1), 1e-9)[..., None]
 
 
+def rotate(v: FloatArray, angle: FloatArray) -> FloatArray:
+    """Vectors ``v`` (m, 2) rotated by angles ``angle`` (m,) or one angle, rad (a body-frame
+    offset to the world frame at heading ``angle``)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], -1)
+
+
 def invert_image(ranges: FloatArray, rx_body: FloatArray) -> FloatArray:
     """Image point ``T'`` in the array frame from one pair of ranges (wall or corner echo).
 

@@ -45,6 +45,7 @@ from fusion_center.mapping.models import (
     WALL,
     invert_image,
     predict,
+    rotate,
     wall_tangent,
 )
 from fusion_center.mapping.turn_closure import group_median
@@ -663,10 +664,7 @@ class LeastSquaresPathMapSmoother:
         poses = result.poses[acq[free]]
         tx, _, yaw = self._array(poses)
         body = invert_image(z[free] - self.bias, self.antennas[1:] - self.antennas[0])
-        c, s = np.cos(yaw), np.sin(yaw)
-        image = tx + np.stack(
-            [c * body[:, 0] - s * body[:, 1], s * body[:, 0] + c * body[:, 1]], -1
-        )
+        image = tx + rotate(body, yaw)
         ok = np.all(np.isfinite(image), 1)
         free, image, tx, poses = free[ok], image[ok], tx[ok], poses[ok]
         label = image_clusters(image, result.pair_stop[free], radius=radius, min_size=min_pairs)

@@ -57,7 +57,7 @@ from scipy.optimize import least_squares
 
 from fusion_center.mapping.echoes import pair_echoes
 from fusion_center.mapping.grouping import KalmanEchoGrouper
-from fusion_center.mapping.models import invert_image
+from fusion_center.mapping.models import invert_image, rotate
 from fusion_center.mapping.pipeline import MapperConfig, echo_extractor
 from fusion_center.mapping.relocalise import compose_poses
 from fusion_center.mapping.stop_bundle import (
@@ -1255,12 +1255,6 @@ def relative_covariance(poses: FloatArray, cov: FloatArray, i: int, j: int) -> F
 # --------------------------------------------------------------------------- refinement
 
 
-def _rotate(v: FloatArray, a: FloatArray) -> FloatArray:
-    """Vectors ``v`` (m, 2) rotated by angles ``a`` (m,), rad."""
-    c, s = np.cos(a), np.sin(a)
-    return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
-
-
 def refine_turns(
     stops: Sequence[StopScan],
     edges: Sequence[GraphEdge],
@@ -1382,26 +1376,26 @@ def refine_turns(
         return p, x[3 * (n - 1) :].reshape(n, 2)
 
     def image_residuals(p: FloatArray, c: FloatArray) -> FloatArray:
-        ia = _rotate(img_a, np.sum(g_a * c[ei], 1))
-        ib = _rotate(img_b, np.sum(g_b * c[ej], 1))
+        ia = rotate(img_a, np.sum(g_a * c[ei], 1))
+        ib = rotate(img_b, np.sum(g_b * c[ej], 1))
         pi, pj = p[ei], p[ej]
-        t = _rotate(pj[:, :2] - pi[:, :2], -pi[:, 2])
+        t = rotate(pj[:, :2] - pi[:, :2], -pi[:, 2])
         # the wall's guard acted when the correspondence was formed (predicted_images at the
         # stop pair's pose); here the model stays smooth (a residual zeroed behind B would
         # make the cost jump, and hide a NaN)
         w_rel, p_rel, s_rel = images_seen_from(ia, t, point_bias, guard=False)
         pt = p_rel if s_rel is None else np.where(scat[:, None], s_rel, p_rel)
         rel = np.where(wall[:, None], w_rel, pt)
-        pred = _rotate(rel, -(pj[:, 2] - pi[:, 2]))
+        pred = rotate(rel, -(pj[:, 2] - pi[:, 2]))
         return (ib - pred) / sig[:, None]
 
     def fun(x: FloatArray) -> FloatArray:
         p, c = unpack(x)
         r_img = image_residuals(p, c) * np.sqrt(ew * cw)[:, None]
         pi, pj = p[oi], p[oi + 1]
-        rel = np.column_stack([_rotate(pj[:, :2] - pi[:, :2], -pi[:, 2]), pj[:, 2] - pi[:, 2]])
+        rel = np.column_stack([rotate(pj[:, :2] - pi[:, :2], -pi[:, 2]), pj[:, 2] - pi[:, 2]])
         d_end = c[oi, 0]
-        z = np.column_stack([oend + _rotate(oz[:, :2] - oend, d_end), oz[:, 2] + d_end])
+        z = np.column_stack([oend + rotate(oz[:, :2] - oend, d_end), oz[:, 2] + d_end])
         d = rel - z
         d[:, 2] = _wrap(d[:, 2])
         r_odo = np.einsum("mij,mj->mi", osq, d)
